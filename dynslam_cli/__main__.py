@@ -1,0 +1,3 @@
+from dynslam_cli.cli import main
+
+main()

@@ -1,0 +1,189 @@
+"""The command line. Only this module knows about terminals: progress bars, colours, exit
+codes. Every user error becomes one line on stderr and exit code 1 (click's usage errors: 2).
+Heavy modules are imported inside the commands so ``dynslam --help`` starts fast.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from dynslam_cli import __version__
+
+LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
+
+
+def _fail(message: str) -> None:
+    click.echo(f"dynslam: error: {message}", err=True)
+    sys.exit(1)
+
+
+def _guarded(work: Callable[[], Any]) -> Any:
+    """Run ``work``; known errors become one line on stderr and exit code 1."""
+    from dynslam_cli.errors import DynslamError
+
+    try:
+        return work()
+    except DynslamError as e:
+        _fail(str(e))
+    except KeyboardInterrupt:
+        click.echo("dynslam: interrupted; no output written", err=True)
+        sys.exit(130)
+    except BrokenPipeError:
+        sys.exit(1)
+
+
+def default_output(log: str) -> Path:
+    """``./<log stem>_dynslam`` for a log path (``stdin_dynslam`` for ``-``)."""
+    if log == "-":
+        return Path("stdin_dynslam")
+    name = Path(log.rstrip("/")).name
+    changed = True
+    while changed:
+        changed = False
+        for suffix in LOG_SUFFIXES:
+            if name.endswith(suffix) and len(name) > len(suffix):
+                name, changed = name[: -len(suffix)], True
+    return Path(f"{name}_dynslam")
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="dynslam")
+def main() -> None:
+    """dynslam: 2D laser SLAM in dynamic environments, over recorded robot logs.
+
+    Builds a static map S and a dynamic map D (Wolf & Sukhatme 2005), a corner landmark map
+    and the corrected trajectory from Carmen/Radish/Freiburg logs.
+
+    \b
+    Start with:
+      dynslam process samples/office.log          # writes ./office_dynslam/
+      dynslam process COMMAND --help              # every option, with examples
+    """
+
+
+@main.command()
+@click.argument("log", type=click.Path(exists=True, allow_dash=True))
+@click.option("-o", "--output", type=click.Path(path_type=Path),
+              help="Output folder [default: ./<log stem>_dynslam].")
+@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.option("--format", "format_name", metavar="NAME",
+              help="Log format instead of detecting it: carmen.")
+@click.option("--laser", default="front", show_default=True, metavar="WHICH",
+              help="Which laser: Carmen front|rear|3|4.")
+@click.option("--flaser-fov", type=float, metavar="DEG",
+              help="Field of view of old FLASER records (degrees) instead of CARMEN's rule.")
+@click.option("--resolution", type=float, metavar="M",
+              help="Grid cell size in metres [default: 0.05].")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False,
+              path_type=Path), help="TOML file with algorithm parameters (see README).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
+def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
+            flaser_fov: float | None, resolution: float | None, config_file: Path | None,
+            quiet: bool) -> None:
+    """Run SLAM over LOG and write maps, landmarks and trajectory.
+
+    LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped) or - for standard input.
+
+    \b
+    Writes into the output folder (atomically: all or nothing):
+      static.pgm/.yaml    static map S (map_server, mode: scale)
+      dynamic.pgm/.yaml   dynamic map D (same size and origin)
+      map.png             picture of S ∪ D with the trajectory
+      landmarks.csv       id,x,y,kind,class,observations
+      trajectory.tum      one robot pose per scan (TUM, for evo)
+      summary.json        counts, skips, timing, effective configuration
+    The output folder's path is printed on stdout.
+
+    \b
+    Examples:
+      dynslam process mit-csail.clf
+      dynslam process intel.log.gz -o out/intel --resolution 0.1
+      zcat run3.log.gz | dynslam process - -o run3 --quiet
+      dynslam process robot.log --laser rear --config tuned.toml --force
+    """
+    target = output if output is not None else default_output(log)
+    overrides = {"map": {"resolution_m": resolution}} if resolution is not None else {}
+    if flaser_fov is not None:
+        overrides.setdefault("laser", {})["fov_deg"] = flaser_fov
+
+    def work() -> None:
+        from dynslam_cli.config import load_config
+        from formats.outdir import check_target
+
+        config = load_config(config_file, overrides)
+        check_target(target, force)
+        summary = _process(log, target, force, format_name, laser, config, quiet)
+        if not quiet:
+            s = summary
+            click.echo(f"dynslam: {s['scans_processed']} scans, {s['data_duration_s']:.1f} s of "
+                       f"data in {s['wall_time_s']:.2f} s → {target}", err=True)
+        click.echo(str(target))
+
+    _guarded(work)
+
+
+def _process(log: str, target: Path, force: bool, format_name: str | None, laser: str,
+             config: Any, quiet: bool) -> dict[str, Any]:
+    import resource
+
+    from tqdm import tqdm
+
+    from dynslam_cli.pipeline import run
+    from formats import ReaderOptions, open_log
+    from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
+
+    start = time.perf_counter()
+    options = ReaderOptions(laser=laser, fov_deg=config.laser.fov_deg)
+    source, entry, reader = open_log(log, options, format_name)
+    try:
+        total = source.progress()[1]
+        with tqdm(total=total or None, unit="B", unit_scale=True, disable=quiet or None,
+                  desc=Path(source.name).name, file=sys.stderr, leave=False) as bar:
+
+            def on_scan(i: int) -> None:
+                if i % 20 == 0:
+                    bar.update(source.progress()[0] - bar.n)
+
+            result = run(reader.scans(), config, on_scan)
+    finally:
+        source.close()
+    _report_warnings(source.name, reader.stats)
+    stamps = result.trajectory[:, 0]
+    with atomic_output_dir(target, force) as tmp:
+        summary = {
+            "tool": {"name": "dynslam", "version": __version__},
+            "input": {"path": source.name, "format": entry.name,
+                      "options": {"laser": laser, "format": format_name}},
+            "reader": reader.stats.to_dict(),
+            "scans_processed": len(stamps),
+            "first_stamp": float(stamps[0]) if len(stamps) else None,
+            "data_duration_s": float(stamps.max() - stamps.min()) if len(stamps) else 0.0,
+            "map": {"rows": int(result.static.prob.shape[0]),
+                    "cols": int(result.static.prob.shape[1]),
+                    "resolution_m": result.static.resolution,
+                    "origin": [result.static.origin_x, result.static.origin_y]},
+            "config": config.to_dict(),
+            "outputs": list(OUTPUT_FILES),
+            "wall_time_s": round(time.perf_counter() - start, 3),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        }
+        write_results(tmp, result, config, summary)
+    return summary
+
+
+def _report_warnings(name: str, stats: Any) -> None:
+    for kind, counter in (("skipped", stats.skipped), ("warning", stats.warnings)):
+        for reason, count in sorted(counter.items()):
+            line = stats.first_line.get(reason, 0)
+            where = f"{name}:{line}" if line else name
+            click.echo(f"dynslam: {kind}: {where}: {reason} (×{count})", err=True)
+
+
+if __name__ == "__main__":
+    main()

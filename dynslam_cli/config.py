@@ -1,0 +1,151 @@
+"""Every algorithm parameter, with its unit, in one frozen dataclass tree.
+
+A TOML file overrides any of them section by section, e.g.::
+
+    [map]
+    resolution_m = 0.1
+
+    [laser]
+    clear_cap_m = 15.0
+
+Unknown sections or keys, and values of the wrong type, are errors (:class:`ConfigError`).
+The effective configuration is written to ``summary.json`` beside the outputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from dynslam_cli.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Occupancy grids: geometry and the inverse sensor model of an ordinary grid."""
+
+    resolution_m: float = 0.05
+    """Cell edge length (metres)."""
+    p_hit: float = 0.85
+    """Inverse sensor model value for a cell where a beam ended (probability)."""
+    p_miss: float = 0.35
+    """Inverse sensor model value for a cell a beam passed through (probability)."""
+    p_clamp_min: float = 0.02
+    """Log-odds are clamped to [logit(p_clamp_min), logit(p_clamp_max)] so maps stay revisable."""
+    p_clamp_max: float = 0.98
+    free_threshold: float = 0.1
+    """A cell with p below this is Free (paper Sec. 3.1: 0.1)."""
+    occupied_threshold: float = 0.9
+    """A cell with p above this is Occupied (paper Sec. 3.1: 0.9)."""
+    grow_margin_m: float = 10.0
+    """When the robot leaves the grid, it grows by at least this much on that side (metres)."""
+
+
+@dataclass(frozen=True)
+class LaserConfig:
+    """How readings are interpreted."""
+
+    min_range_m: float = 0.02
+    """Readings at or below this are invalid (SICK error codes are often 0) and dropped."""
+    max_range_m: float | None = None
+    """Override the log's max range (metres); readings at or above it are 'no return'."""
+    clear_cap_m: float = 10.0
+    """A no-return beam clears free space up to this distance (metres) and marks no hit."""
+    fov_deg: float | None = None
+    """Field of view for logs whose records carry no beam angles (old FLASER), overriding
+    CARMEN's rule (degrees). The first beam is at -fov/2, beams evenly spaced."""
+
+
+@dataclass(frozen=True)
+class Config:
+    """All parameters of one run."""
+
+    map: MapConfig = field(default_factory=MapConfig)
+    laser: LaserConfig = field(default_factory=LaserConfig)
+
+    def validate(self) -> Config:
+        """Check value ranges; returns self so calls chain."""
+        m = self.map
+        checks = [
+            (m.resolution_m > 0, "map.resolution_m must be > 0"),
+            (0.5 < m.p_hit < 1, "map.p_hit must be in (0.5, 1)"),
+            (0 < m.p_miss < 0.5, "map.p_miss must be in (0, 0.5)"),
+            (0 < m.p_clamp_min < 0.5 < m.p_clamp_max < 1, "map clamp must be 0 < min < 0.5 < max < 1"),
+            (0 < m.free_threshold < 0.5 < m.occupied_threshold < 1,
+             "map thresholds must be 0 < free_threshold < 0.5 < occupied_threshold < 1"),
+            (m.grow_margin_m > 0, "map.grow_margin_m must be > 0"),
+            (self.laser.clear_cap_m > 0, "laser.clear_cap_m must be > 0"),
+            (self.laser.min_range_m >= 0, "laser.min_range_m must be >= 0"),
+            (self.laser.max_range_m is None or self.laser.max_range_m > 0,
+             "laser.max_range_m must be > 0"),
+            (self.laser.fov_deg is None or 0 < self.laser.fov_deg <= 360,
+             "laser.fov_deg must be in (0, 360]"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ConfigError(message)
+        return self
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _coerce(value: Any, annotation: Any, where: str) -> Any:
+    """Check a TOML value against a field's type annotation (float accepts int)."""
+    allowed = typing.get_args(annotation) if isinstance(annotation, types.UnionType) else (
+        annotation,)
+    for t in allowed:
+        if t is type(None) and value is None:
+            return None
+        if t is float and isinstance(value, int | float) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                break
+            return float(value)
+        if t in (int, str, bool) and type(value) is t:
+            return value
+    names = " or ".join(getattr(t, "__name__", str(t)) for t in allowed)
+    raise ConfigError(f"{where}: expected {names}, got {value!r}")
+
+
+def _build(cls: type, values: dict[str, Any], where: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: "
+                          f"{', '.join(sorted(known))}")
+    kwargs = {}
+    for name, value in values.items():
+        hint = hints[name]
+        if dataclasses.is_dataclass(hint):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{where}[{name}] must be a table")
+            kwargs[name] = _build(hint, value, f"{where}[{name}]")
+        else:
+            kwargs[name] = _coerce(value, hint, f"{where}: {name}")
+    return cls(**kwargs)
+
+
+def load_config(path: Path | None = None, overrides: dict[str, dict[str, Any]] | None = None
+                ) -> Config:
+    """Defaults, then the TOML file at ``path``, then ``overrides`` ({section: {key: value}})."""
+    values: dict[str, dict[str, Any]] = {}
+    where = "config"
+    if path is not None:
+        where = str(path)
+        try:
+            with open(path, "rb") as f:
+                values = tomllib.load(f)
+        except OSError as e:
+            raise ConfigError(f"{path}: cannot read: {e.strerror}") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{path}: not valid TOML: {e}") from None
+    for section, items in (overrides or {}).items():
+        values.setdefault(section, {}).update(items)
+    return _build(Config, values, where).validate()

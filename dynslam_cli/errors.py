@@ -1,0 +1,26 @@
+"""The errors a user can cause. The CLI turns each into one line on stderr and exit code 1."""
+
+from __future__ import annotations
+
+
+class DynslamError(Exception):
+    """Base of every error that is the user's input or environment, not a bug."""
+
+
+class InputError(DynslamError):
+    """Bad input data: names the file and, where there is one, the line."""
+
+    def __init__(self, source: str, message: str, line: int | None = None) -> None:
+        self.source = source
+        self.line = line
+        self.message = message
+        where = f"{source}:{line}" if line is not None else source
+        super().__init__(f"{where}: {message}")
+
+
+class ConfigError(DynslamError):
+    """A configuration file or option that cannot be used."""
+
+
+class OutputError(DynslamError):
+    """The output cannot be written where asked (exists, not writable, ...)."""

@@ -1,0 +1,48 @@
+"""SE(2) helpers: angle wrapping, composition, inversion, interpolation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dynslam_cli.types import Pose2D
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def wrap_angles(a: np.ndarray) -> np.ndarray:
+    """Vectorized :func:`wrap_angle`."""
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def compose(a: Pose2D, b: Pose2D) -> Pose2D:
+    """a ⊕ b: pose b (given in the frame of a) expressed in a's parent frame."""
+    c, s = math.cos(a.theta), math.sin(a.theta)
+    return Pose2D(a.x + c * b.x - s * b.y, a.y + s * b.x + c * b.y, wrap_angle(a.theta + b.theta))
+
+
+def inverse(a: Pose2D) -> Pose2D:
+    """⊖a, so that compose(a, inverse(a)) is the identity."""
+    c, s = math.cos(a.theta), math.sin(a.theta)
+    return Pose2D(-c * a.x - s * a.y, s * a.x - c * a.y, wrap_angle(-a.theta))
+
+
+def relative(a: Pose2D, b: Pose2D) -> Pose2D:
+    """⊖a ⊕ b: pose b expressed in the frame of pose a."""
+    return compose(inverse(a), b)
+
+
+def interpolate(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
+    """Pose a fraction f of the way from a to b (heading along the shorter arc)."""
+    dth = wrap_angle(b.theta - a.theta)
+    return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * dth))
+
+
+def polar_to_xy(pose: Pose2D, ranges: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Beam end points (N×2, metres) in the frame that ``pose`` is expressed in."""
+    a = angles + pose.theta
+    return np.column_stack((pose.x + ranges * np.cos(a), pose.y + ranges * np.sin(a)))

@@ -1,0 +1,170 @@
+"""Growable occupancy grids in log-odds and vectorized beam tracing.
+
+Cell (row, col) covers x in [origin_x + col·res, origin_x + (col+1)·res) and likewise y with
+row, so row 0 is the *lowest* y (writers flip it for images, whose first row is the top).
+All layers of a :class:`GridStack` share one geometry and grow together, so the static and
+dynamic maps always have the same size and origin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from dynslam_cli.types import Pose2D
+
+
+def logit(p: float) -> float:
+    """Log-odds of probability p."""
+    return math.log(p / (1.0 - p))
+
+
+def probability(logodds: np.ndarray) -> np.ndarray:
+    """Probability from log-odds (elementwise)."""
+    return 1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What one scan says about the grid: flat indices of cells seen free and cells hit.
+
+    A cell hit by one beam and passed through by another is only in ``hit``. ``free`` may hold
+    repeats (updates are written by assignment, so a repeat changes nothing).
+    """
+
+    free: np.ndarray
+    hit: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class OccupancyMap:
+    """A finished map: occupancy probabilities, ``prob[row, col]`` with row 0 at the lowest y."""
+
+    prob: np.ndarray
+    resolution: float
+    origin_x: float
+    origin_y: float
+
+
+class GridStack:
+    """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one growable grid."""
+
+    def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...]) -> None:
+        self.resolution = resolution
+        self.margin_cells = max(1, math.ceil(grow_margin / resolution))
+        self.origin_col = 0  # world cell index of local column 0
+        self.origin_row = 0
+        self.layers: dict[str, np.ndarray] = {n: np.zeros((0, 0), np.float32) for n in names}
+        self.seen = np.zeros((0, 0), bool)
+        self._scratch = np.zeros(0, bool)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.seen.shape
+
+    def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
+        """Grow every layer so that the rectangle lies inside, with a margin."""
+        r = self.resolution
+        c0, c1 = math.floor(xmin / r), math.floor(xmax / r)
+        r0, r1 = math.floor(ymin / r), math.floor(ymax / r)
+        rows, cols = self.shape
+        if rows and (self.origin_col <= c0 and c1 < self.origin_col + cols
+                     and self.origin_row <= r0 and r1 < self.origin_row + rows):
+            return
+        m = self.margin_cells
+        if rows:
+            nc0 = min(self.origin_col, c0 - m) if c0 < self.origin_col else self.origin_col
+            nr0 = min(self.origin_row, r0 - m) if r0 < self.origin_row else self.origin_row
+            oc1, or1 = self.origin_col + cols - 1, self.origin_row + rows - 1
+            nc1 = c1 + m if c1 > oc1 else oc1
+            nr1 = r1 + m if r1 > or1 else or1
+        else:
+            nc0, nr0, nc1, nr1 = c0 - m, r0 - m, c1 + m, r1 + m
+        new_shape = (nr1 - nr0 + 1, nc1 - nc0 + 1)
+        dr, dc = self.origin_row - nr0, self.origin_col - nc0
+        for name, old in self.layers.items():
+            grown = np.zeros(new_shape, old.dtype)
+            grown[dr:dr + rows, dc:dc + cols] = old
+            self.layers[name] = grown
+        seen = np.zeros(new_shape, bool)
+        seen[dr:dr + rows, dc:dc + cols] = self.seen
+        self.seen = seen
+        self._scratch = np.zeros(new_shape[0] * new_shape[1], bool)
+        self.origin_row, self.origin_col = nr0, nc0
+
+    def flat_index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat cell indices of world points (which must lie inside the grid)."""
+        r = self.resolution
+        col = np.floor(x / r).astype(np.int64) - self.origin_col
+        row = np.floor(y / r).astype(np.int64) - self.origin_row
+        return row * self.shape[1] + col
+
+    def observe(self, sensor: Pose2D, ranges: np.ndarray, angles: np.ndarray,
+                max_range: float, min_range: float, clear_cap: float) -> Observation:
+        """Trace every beam of one scan from the sensor pose.
+
+        A reading in (min_range, max_range) is a hit at its end and free space before it;
+        a reading >= max_range or +inf is "no return": free space up to ``clear_cap`` and no
+        hit; NaN or <= min_range is invalid and ignored.
+        """
+        with np.errstate(invalid="ignore"):
+            is_hit = (ranges > min_range) & (ranges < max_range)
+            no_return = ranges >= max_range  # +inf included, NaN excluded
+        length = np.where(is_hit, ranges, np.where(no_return, min(clear_cap, max_range), 0.0))
+        used = length > 0
+        length, ang, is_hit = length[used], angles[used] + sensor.theta, is_hit[used]
+        cos, sin = np.cos(ang), np.sin(ang)
+        ex, ey = sensor.x + length * cos, sensor.y + length * sin
+        if len(length):
+            self.ensure(min(ex.min(), sensor.x), min(ey.min(), sensor.y),
+                        max(ex.max(), sensor.x), max(ey.max(), sensor.y))
+        else:
+            self.ensure(sensor.x, sensor.y, sensor.x, sensor.y)
+        hit = self.flat_index(ex[is_hit], ey[is_hit])
+
+        # Free space: sample each beam every cell length from the sensor to its end.
+        step = self.resolution
+        counts = np.ceil(length / step).astype(np.int64)
+        beam = np.repeat(np.arange(len(length)), counts)
+        starts = np.cumsum(counts) - counts
+        d = (np.arange(counts.sum()) - np.repeat(starts, counts)) * step
+        free = self.flat_index(sensor.x + d * cos[beam], sensor.y + d * sin[beam])
+        mark = self._scratch
+        mark[hit] = True
+        free = free[~mark[free]]
+        mark[hit] = False
+        self.seen.reshape(-1)[free] = True
+        self.seen.reshape(-1)[hit] = True
+        return Observation(free=free, hit=hit)
+
+    def snapshot(self, name: str) -> OccupancyMap:
+        """The layer as probabilities, cropped with the other layers to the observed area."""
+        return self._crop(probability(self.layers[name]))
+
+    def bounds(self) -> tuple[int, int, int, int]:
+        """(row0, row1, col0, col1) half-open local bounds of every observed cell (+1 cell)."""
+        rows = np.flatnonzero(self.seen.any(axis=1))
+        cols = np.flatnonzero(self.seen.any(axis=0))
+        if not len(rows):
+            return 0, min(1, self.shape[0]), 0, min(1, self.shape[1])
+        r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, self.shape[0])
+        c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, self.shape[1])
+        return int(r0), int(r1), int(c0), int(c1)
+
+    def _crop(self, prob: np.ndarray) -> OccupancyMap:
+        r0, r1, c0, c1 = self.bounds()
+        res = self.resolution
+        return OccupancyMap(prob=prob[r0:r1, c0:c1].copy(), resolution=res,
+                            origin_x=(self.origin_col + c0) * res,
+                            origin_y=(self.origin_row + r0) * res)
+
+
+def update_ordinary(logodds: np.ndarray, obs: Observation, l_hit: float, l_miss: float,
+                    l_min: float, l_max: float) -> None:
+    """The classic log-odds occupancy update, for one layer in place (paper Eq. 12 with a
+    constant inverse sensor model: free cells get l_miss, hit cells l_hit)."""
+    flat = logodds.reshape(-1)
+    flat[obs.free] = np.clip(flat[obs.free] + l_miss, l_min, l_max)
+    flat[obs.hit] = np.clip(flat[obs.hit] + l_hit, l_min, l_max)

@@ -1,0 +1,35 @@
+"""The records that flow between readers, the SLAM core and the writers."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class Pose2D:
+    """A planar pose: position in metres, heading in radians (counter-clockwise from +x)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Scan:
+    """One laser sweep with the robot's odometry at the sweep's time stamp.
+
+    ``ranges`` and ``angles`` are float64 arrays of equal length (metres, radians in the laser
+    frame). Readings ``>= max_range`` or ``+inf`` mean "no return"; NaN marks an invalid beam.
+    ``odom`` is the robot's pose in the odometry frame; ``laser`` is the laser's mounting pose
+    on the robot. ``source_line`` (1-based, 0 if not a text format) points back into the log.
+    """
+
+    stamp: float
+    ranges: np.ndarray
+    angles: np.ndarray
+    max_range: float
+    odom: Pose2D
+    laser: Pose2D = field(default_factory=Pose2D)
+    source_line: int = 0
