@@ -133,7 +133,7 @@ def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     stream = io.TextIOWrapper(source.open(), encoding="utf-8", errors="replace", newline=None)
     lineno = 0
     try:
-        for lineno, line in enumerate(stream, 1):  # noqa: B007 - used after the loop
+        for lineno, line in enumerate(stream, 1):
             if line.endswith("\n"):
                 yield lineno, line[:-1], True
             else:

@@ -50,7 +50,7 @@ from typing import ClassVar
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.geometry import interpolate, relative
+from dynslam_cli.geometry import compose, interpolate, relative
 from dynslam_cli.types import Pose2D, Scan
 from formats.base import ReaderOptions, ReadStats, Source, text_lines
 
@@ -67,6 +67,7 @@ LASERS = {
 PARAM_PREFIX = {"front": "front", "rear": "rear", "3": "laser3", "4": "laser4"}
 POSED_KINDS = ("FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2")
 CARMEN_DEFAULT_MAX_RANGE = 80.0
+NO_OFFSET = Pose2D()
 TRAILER = 3  # ipc_timestamp ipc_hostname logger_timestamp
 
 
@@ -243,20 +244,23 @@ class CarmenReader:
             self.stats.warn("+inf ranges: no return", self._line, int(np.isposinf(values).sum()))
         return values
 
-    def _pose(self, values: np.ndarray) -> Pose2D | None:
+    def _poses(self, values: np.ndarray) -> tuple[Pose2D, Pose2D] | None:
+        """(laser pose, robot pose) from six numbers; None (counted skip) if not finite."""
         if not np.isfinite(values).all():
             self.stats.skip("pose is NaN or infinite", self._line)
             return None
-        return Pose2D(float(values[0]), float(values[1]), float(values[2]))
+        v = [float(x) for x in values]
+        return Pose2D(*v[:3]), Pose2D(*v[3:6])
 
     # -- records --------------------------------------------------------------------------
     def _old_laser(self, tokens: list[str]) -> Iterator[Scan]:
         n = self._count(tokens, 1)
         self._expect(tokens, n + 8 + TRAILER, f"{n} beams + laser pose + robot pose")
         values = self._numbers(tokens, 2, n + 8)
-        laser_pose, robot = self._pose(values[n:n + 3]), self._pose(values[n + 3:n + 6])
-        if laser_pose is None or robot is None:
+        poses = self._poses(values[n:n + 6])
+        if poses is None:
             return
+        laser_pose, robot = poses
         fov = self.options.fov_deg
         if fov is not None:
             start, step = -math.radians(fov) / 2, math.radians(fov) / max(n - 1, 1)
@@ -294,10 +298,10 @@ class CarmenReader:
     def _robot_laser(self, tokens: list[str]) -> Iterator[Scan]:
         n, m, header = self._raw_header(tokens, 11)
         ranges, angles, max_range = self._raw_scan(tokens, n, header)
-        poses = self._numbers(tokens, 10 + n + m, 16 + n + m)
-        laser_pose, robot = self._pose(poses[:3]), self._pose(poses[3:6])
-        if laser_pose is None or robot is None:
+        poses = self._poses(self._numbers(tokens, 10 + n + m, 16 + n + m))
+        if poses is None:
             return
+        laser_pose, robot = poses
         yield from self._emit(self._stamp(tokens), ranges, angles, max_range, robot,
                               relative(robot, laser_pose))
 
@@ -382,3 +386,41 @@ class CarmenReader:
         self.stats.scans += 1
         yield Scan(stamp=stamp, ranges=ranges, angles=angles, max_range=max_range, odom=odom,
                    laser=laser, source_line=line)
+
+
+# -- writing ------------------------------------------------------------------------------
+def _line(*fields: object) -> str:
+    return " ".join(str(f) for f in fields) + "\n"
+
+
+def format_param(name: str, value: object, host: str = "dynslam") -> str:
+    return _line("PARAM", name, value, "0.000000", host, "0.000000")
+
+
+def format_odom(stamp: float, odom: Pose2D, host: str = "dynslam") -> str:
+    ts = f"{stamp:.6f}"
+    return _line("ODOM", f"{odom.x:.6f}", f"{odom.y:.6f}", f"{odom.theta:.6f}", 0, 0, 0, ts,
+                 host, ts)
+
+
+def format_flaser(stamp: float, ranges: np.ndarray, odom: Pose2D, laser: Pose2D = NO_OFFSET,
+                  host: str = "dynslam") -> str:
+    """An old-style FLASER line (laser pose = odom ⊕ laser mounting, then the robot pose)."""
+    lp = compose(odom, laser)
+    ts = f"{stamp:.6f}"
+    return _line("FLASER", len(ranges), " ".join(f"{r:.3f}" for r in ranges),
+                 f"{lp.x:.6f}", f"{lp.y:.6f}", f"{lp.theta:.6f}",
+                 f"{odom.x:.6f}", f"{odom.y:.6f}", f"{odom.theta:.6f}", ts, host, ts)
+
+
+def format_robotlaser1(stamp: float, ranges: np.ndarray, start: float, step: float,
+                       max_range: float, odom: Pose2D, laser: Pose2D = NO_OFFSET,
+                       host: str = "dynslam") -> str:
+    lp = compose(odom, laser)
+    ts = f"{stamp:.6f}"
+    return _line("ROBOTLASER1", 3, f"{start:.6f}", f"{step * (len(ranges) - 1):.6f}",
+                 f"{step:.6f}", f"{max_range:.3f}", "0.010000", 0, len(ranges),
+                 " ".join(f"{r:.3f}" for r in ranges), 0,
+                 f"{lp.x:.6f}", f"{lp.y:.6f}", f"{lp.theta:.6f}",
+                 f"{odom.x:.6f}", f"{odom.y:.6f}", f"{odom.theta:.6f}",
+                 "0.000000 0.000000 0.000000 0.000000 0.000000", ts, host, ts)

@@ -1,0 +1,364 @@
+"""A 2D simulator of dynamic worlds that produces laser scans, drifting odometry and the
+ground truth, after the paper's Stage experiments (Sec. 5).
+
+A :class:`World` holds static wall segments, *boxes* (occasional movers: they stand still and
+are relocated at set times, in view of the robot or out of it) and *walkers* (persistent
+movers: discs that walk their own loops all the time). A robot follows a route that revisits
+places; its laser is ray-cast against everything; its odometry integrates the true motion
+with systematic scale and heading errors plus random noise.
+
+Nothing here touches files: :func:`simulate` yields :class:`SimStep` records and fills a
+:class:`Truth`; the CLI writes them with the format writers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dynslam_cli.geometry import compose, relative, wrap_angle
+from dynslam_cli.types import Pose2D
+
+WORLD_NAMES = ("corridors", "arena", "hall", "crowd")
+
+
+@dataclass(frozen=True)
+class LaserModel:
+    beams: int = 181
+    fov_deg: float = 180.0
+    max_range_m: float = 8.0
+    noise_m: float = 0.01
+    """Standard deviation of the range noise (metres)."""
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    """Odometry error model; everything 0 gives odometry equal to the truth."""
+
+    scale_error: float = 0.02
+    """Systematic translation scale error (fraction)."""
+    heading_bias_deg_per_m: float = 0.25
+    """Systematic heading drift per metre driven (degrees)."""
+    rotation_scale_error: float = 0.015
+    """Systematic rotation scale error (fraction)."""
+    sigma_m_per_sqrt_m: float = 0.01
+    sigma_deg_per_sqrt_rad: float = 0.5
+
+    def scaled(self, factor: float) -> OdometryNoise:
+        return OdometryNoise(*(factor * getattr(self, f) for f in (
+            "scale_error", "heading_bias_deg_per_m", "rotation_scale_error",
+            "sigma_m_per_sqrt_m", "sigma_deg_per_sqrt_rad")))
+
+
+@dataclass
+class Box:
+    """An occasional mover: an axis-aligned rectangle relocated between ``spots``."""
+
+    id: str
+    half_x: float
+    half_y: float
+    spots: list[tuple[float, float]]
+    spot: int = 0
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return self.spots[self.spot]
+
+    def segments(self, center: tuple[float, float] | None = None) -> np.ndarray:
+        cx, cy = center if center is not None else self.center
+        x0, x1, y0, y1 = cx - self.half_x, cx + self.half_x, cy - self.half_y, cy + self.half_y
+        return np.array([[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]])
+
+
+@dataclass
+class Walker:
+    """A persistent mover: a disc walking a closed loop of waypoints at constant speed."""
+
+    id: str
+    radius: float
+    loop: list[tuple[float, float]]
+    speed: float
+    phase_m: float = 0.0
+
+    def position(self, t: float) -> tuple[float, float]:
+        pts = np.array([*self.loop, self.loop[0]], dtype=float)
+        seg = np.hypot(*np.diff(pts, axis=0).T)
+        s = (self.phase_m + self.speed * t) % seg.sum()
+        i = int(np.searchsorted(np.cumsum(seg), s, side="right"))
+        i = min(i, len(seg) - 1)
+        f = (s - (np.cumsum(seg)[i] - seg[i])) / seg[i]
+        p = pts[i] + f * (pts[i + 1] - pts[i])
+        return float(p[0]), float(p[1])
+
+
+@dataclass
+class World:
+    name: str
+    walls: np.ndarray  # K×4 segments x1 y1 x2 y2
+    route: list[tuple[float, float]]
+    start: Pose2D
+    boxes: list[Box] = field(default_factory=list)
+    walkers: list[Walker] = field(default_factory=list)
+    relocations: int = 0
+    relocate_in_view: bool = False
+    speed: float = 0.5
+
+    def static_corners(self) -> list[tuple[float, float]]:
+        """End points shared by two non-collinear walls: the true static corners."""
+        ends: dict[tuple[float, float], list[int]] = {}
+        for k, (x1, y1, x2, y2) in enumerate(self.walls):
+            for p in ((round(x1, 6), round(y1, 6)), (round(x2, 6), round(y2, 6))):
+                ends.setdefault(p, []).append(k)
+        corners = []
+        for p, ks in ends.items():
+            if len(ks) >= 2:
+                a, b = self.walls[ks[0]], self.walls[ks[1]]
+                da, db = a[2:] - a[:2], b[2:] - b[:2]
+                if abs(da[0] * db[1] - da[1] * db[0]) > 1e-9:
+                    corners.append(p)
+        return sorted(corners)
+
+
+def _rect(x0: float, y0: float, x1: float, y1: float) -> list[list[float]]:
+    return [[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]]
+
+
+def build_world(name: str, seed: int = 0, walkers: int | None = None) -> World:
+    """One of the built-in worlds (:data:`WORLD_NAMES`)."""
+    rng = np.random.default_rng(seed)
+    if name == "corridors":
+        # A ring of 2.4 m corridors around a 20 m × 10 m block, with six alcoves where boxes
+        # are kept; boxes are always moved while the robot is elsewhere (Table 4, corridors).
+        walls = [[0, 0, 0, 16], [26, 0, 26, 16], *_rect(3, 3, 23, 13)]
+        alcove_x = (6.0, 13.0, 20.0)
+        for y, d in ((0.0, -1.0), (16.0, 1.0)):
+            xs = [0.0] + [v for ax in alcove_x for v in (ax - 0.8, ax + 0.8)] + [26.0]
+            walls += [[xs[i], y, xs[i + 1], y] for i in range(0, len(xs), 2)]
+            for ax in alcove_x:  # 1.6 m wide, 1.0 m deep notches in the outer wall
+                walls += [[ax - 0.8, y, ax - 0.8, y + d], [ax - 0.8, y + d, ax + 0.8, y + d],
+                          [ax + 0.8, y + d, ax + 0.8, y]]
+        boxes = [Box("box0", 0.35, 0.3, [(6.0, -0.45), (13.0, 16.45), (20.0, -0.45)]),
+                 Box("box1", 0.35, 0.3, [(13.0, -0.45), (20.0, 16.45), (6.0, 16.45)])]
+        route = [(1.5, 1.5), (24.5, 1.5), (24.5, 14.5), (1.5, 14.5)]
+        return World(name, np.array(walls, float), route, Pose2D(1.5, 8.0, -math.pi / 2),
+                     boxes=boxes, relocations=20)
+    if name == "arena":
+        # A 12 m × 12 m room with four pillars; boxes moved in front of the robot.
+        walls = _rect(0, 0, 12, 12) + _rect(3, 3, 3.6, 3.6) + _rect(8.4, 3, 9, 3.6) \
+            + _rect(3, 8.4, 3.6, 9) + _rect(8.4, 8.4, 9, 9)
+        boxes = [Box("box0", 0.3, 0.3, [(6.0, 4.5), (7.5, 6.0), (6.0, 7.5), (4.5, 6.0)]),
+                 Box("box1", 0.25, 0.4, [(10.5, 6.0), (6.0, 10.5), (1.5, 6.0), (6.0, 1.5)])]
+        route = [(1.5, 1.5), (10.5, 1.5), (10.5, 10.5), (1.5, 10.5)]
+        return World(name, np.array(walls, float), route, Pose2D(1.5, 6.0, -math.pi / 2),
+                     boxes=boxes, relocations=20, relocate_in_view=True)
+    if name == "hall":
+        # 19 m × 11 m hall with columns, 2-10 robots walking loops, boxes moved out of view.
+        walls = _rect(0, 0, 19, 11) + _rect(6, 3.5, 6.6, 4.1) + _rect(12.4, 3.5, 13, 4.1) \
+            + _rect(6, 6.9, 6.6, 7.5) + _rect(12.4, 6.9, 13, 7.5) + [[9.5, 0, 9.5, 2.0]]
+        n = 4 if walkers is None else walkers
+        if not 2 <= n <= 10:
+            raise ValueError("hall has 2 to 10 walkers")
+        loops = []
+        for k in range(n):
+            cx, cy = 4.0 + 11.0 * rng.random(), 3.5 + 4.0 * rng.random()
+            r = 0.6 + 0.6 * rng.random()
+            loops.append(Walker(f"robot{k}", 0.2, [(cx - r, cy - r), (cx + r, cy - r),
+                                                   (cx + r, cy + r), (cx - r, cy + r)],
+                                0.3 + 0.2 * rng.random(), float(rng.random() * 4)))
+        boxes = [Box("box0", 0.3, 0.3, [(17.8, 9.8), (17.8, 1.2), (1.2, 9.8)]),
+                 Box("box1", 0.3, 0.3, [(1.2, 1.2), (9.5, 9.8), (17.8, 5.5)])]
+        route = [(2.5, 2.0), (16.5, 2.0), (16.5, 9.0), (2.5, 9.0)]
+        return World(name, np.array(walls, float), route, Pose2D(2.5, 5.5, -math.pi / 2),
+                     boxes=boxes, walkers=loops, relocations=6)
+    if name == "crowd":
+        # 14 m × 10 m open space; three people walking round the robot (Sec. 5.2).
+        walls = _rect(0, 0, 14, 10) + _rect(0, 4.0, 1.0, 6.0)
+        people = [Walker(f"person{k}", 0.22,
+                         [(7 + 3.2 * math.cos(a), 5 + 3.2 * math.sin(a))
+                          for a in np.linspace(0, 2 * math.pi, 12, endpoint=False) + k],
+                         0.6 + 0.15 * k, 0.0) for k in range(3)]
+        route = [(5.5, 4.0), (8.5, 4.0), (8.5, 6.0), (5.5, 6.0)]
+        return World(name, np.array(walls, float), route, Pose2D(5.5, 5.0, -math.pi / 2),
+                     walkers=people, speed=0.3)
+    raise ValueError(f"unknown world {name!r}; built-in: {', '.join(WORLD_NAMES)}")
+
+
+def ray_cast(origin: Pose2D, angles: np.ndarray, segments: np.ndarray, seg_owner: np.ndarray,
+             discs: np.ndarray, disc_owner: np.ndarray, max_range: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Distance along each beam to the first segment or disc, and the owner index it hit
+    (-1 walls/nothing is encoded by the caller's owner arrays; -2 = no return)."""
+    a = angles + origin.theta
+    d = np.column_stack((np.cos(a), np.sin(a)))
+    p = np.array([origin.x, origin.y])
+    best = np.full(len(a), np.inf)
+    owner = np.full(len(a), -2, dtype=np.int64)
+    if len(segments):
+        q, e = segments[:, :2], segments[:, 2:] - segments[:, :2]
+        denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+        w = q[None, :, :] - p[None, None, :]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / denom
+            u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / denom
+        ok = (np.abs(denom) > 1e-12) & (t > 1e-9) & (u >= 0) & (u <= 1)
+        t = np.where(ok, t, np.inf)
+        j = np.argmin(t, axis=1)
+        best = t[np.arange(len(a)), j]
+        owner = np.where(np.isfinite(best), seg_owner[j], -2)
+    if len(discs):
+        c, r = discs[:, :2], discs[:, 2]
+        w = c[None, :, :] - p[None, None, :]
+        proj = w[..., 0] * d[:, None, 0] + w[..., 1] * d[:, None, 1]
+        dist2 = (w ** 2).sum(-1) - proj ** 2
+        with np.errstate(invalid="ignore"):
+            t = proj - np.sqrt(r[None, :] ** 2 - dist2)
+        t = np.where((dist2 <= r[None, :] ** 2) & (t > 1e-9), t, np.inf)
+        j = np.argmin(t, axis=1)
+        td = t[np.arange(len(a)), j]
+        closer = td < best
+        best = np.where(closer, td, best)
+        owner = np.where(closer, disc_owner[j], owner)
+    far = best >= max_range
+    owner[far] = -2
+    return np.where(far, max_range, best), owner
+
+
+@dataclass(frozen=True)
+class SimStep:
+    stamp: float
+    truth: Pose2D
+    odom: Pose2D
+    ranges: np.ndarray
+    hits: tuple[str, ...]
+
+
+@dataclass
+class Truth:
+    """Everything known about a simulated run (written as truth.json)."""
+
+    world: str
+    seed: int
+    laser: LaserModel
+    walls: list[list[float]]
+    corners: list[tuple[float, float]]
+    poses: list[tuple[float, float, float, float]] = field(default_factory=list)
+    odometry: list[tuple[float, float, float, float]] = field(default_factory=list)
+    objects: dict[str, dict] = field(default_factory=dict)
+    events: list[dict] = field(default_factory=list)
+    hits: list[list[str]] = field(default_factory=list)
+
+
+def _world_geometry(world: World, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                       np.ndarray, list[str]]:
+    names = ["wall"] + [b.id for b in world.boxes] + [w.id for w in world.walkers]
+    segs = [world.walls] + [b.segments() for b in world.boxes]
+    owner = [np.zeros(len(world.walls), np.int64)] + [np.full(4, 1 + i, np.int64)
+                                                     for i in range(len(world.boxes))]
+    discs = np.array([(*w.position(t), w.radius) for w in world.walkers]).reshape(-1, 3)
+    disc_owner = 1 + len(world.boxes) + np.arange(len(world.walkers), dtype=np.int64)
+    return np.vstack(segs), np.concatenate(owner), discs, disc_owner, names
+
+
+def simulate(world: World, duration_s: float, rate_hz: float = 10.0, seed: int = 0,
+             laser: LaserModel | None = None, noise: OdometryNoise | None = None
+             ) -> tuple[Iterator[SimStep], Truth]:
+    """Drive the route for ``duration_s``; returns the step stream and the truth it fills."""
+    laser = laser or LaserModel()
+    noise = noise if noise is not None else OdometryNoise()
+    truth = Truth(world=world.name, seed=seed, laser=laser, walls=world.walls.tolist(),
+                  corners=world.static_corners())
+    for b in world.boxes:
+        truth.objects[b.id] = {"kind": "box", "size": [2 * b.half_x, 2 * b.half_y],
+                               "positions": [[0.0, list(b.center)]]}
+    for w in world.walkers:
+        truth.objects[w.id] = {"kind": "walker", "radius": w.radius, "loop": w.loop,
+                               "speed": w.speed, "phase_m": w.phase_m}
+    return _run(world, duration_s, rate_hz, seed, laser, noise, truth), truth
+
+
+def _run(world: World, duration_s: float, rate_hz: float, seed: int, laser: LaserModel,
+         noise: OdometryNoise, truth: Truth) -> Iterator[SimStep]:
+    rng = np.random.default_rng(seed + 1)
+    dt = 1.0 / rate_hz
+    fov = math.radians(laser.fov_deg)
+    angles = -fov / 2 + fov / max(laser.beams - 1, 1) * np.arange(laser.beams)
+    pose, odom = world.start, world.start
+    target = 0
+    n_steps = round(duration_s * rate_hz) + 1
+    event_times = [(k + 1) * duration_s / (world.relocations + 1)
+                   for k in range(world.relocations)]
+    next_event = 0
+    for step in range(n_steps):
+        t = step * dt
+        segs, owner, discs, disc_owner, names = _world_geometry(world, t)
+        if next_event < len(event_times) and t >= event_times[next_event]:
+            box = world.boxes[next_event % len(world.boxes)]
+            if _try_relocate(world, box, pose, angles, laser, t, truth):
+                next_event += 1
+                segs, owner, discs, disc_owner, names = _world_geometry(world, t)
+        ranges, hit_owner = ray_cast(pose, angles, segs, owner, discs, disc_owner,
+                                     laser.max_range_m)
+        valid = hit_owner != -2
+        if laser.noise_m > 0:
+            ranges = np.where(valid, ranges + rng.normal(0, laser.noise_m, len(ranges)), ranges)
+            ranges = np.where(valid, np.clip(ranges, 0.03, laser.max_range_m - 1e-3), ranges)
+        hits = tuple(sorted({names[k] for k in hit_owner[hit_owner > 0]}))
+        truth.poses.append((t, pose.x, pose.y, pose.theta))
+        truth.odometry.append((t, odom.x, odom.y, odom.theta))
+        truth.hits.append(list(hits))
+        yield SimStep(stamp=t, truth=pose, odom=odom, ranges=ranges, hits=hits)
+        new_pose, target = _drive(world, pose, target, dt)
+        odom = compose(odom, _noisy_increment(relative(pose, new_pose), noise, rng))
+        pose = new_pose
+
+
+def _drive(world: World, pose: Pose2D, target: int, dt: float) -> tuple[Pose2D, int]:
+    """Unicycle steering toward the next route waypoint."""
+    tx, ty = world.route[target]
+    if math.hypot(tx - pose.x, ty - pose.y) < 0.4:
+        target = (target + 1) % len(world.route)
+        tx, ty = world.route[target]
+    err = wrap_angle(math.atan2(ty - pose.y, tx - pose.x) - pose.theta)
+    omega = max(-1.0, min(1.0, 2.0 * err))
+    v = world.speed * max(0.0, math.cos(err)) ** 2
+    th = pose.theta + 0.5 * omega * dt
+    return Pose2D(pose.x + v * dt * math.cos(th), pose.y + v * dt * math.sin(th),
+                  wrap_angle(pose.theta + omega * dt)), target
+
+
+def _noisy_increment(inc: Pose2D, noise: OdometryNoise, rng: np.random.Generator) -> Pose2D:
+    dist, rot = math.hypot(inc.x, inc.y), abs(inc.theta)
+    scale = 1.0 + noise.scale_error
+    sx = rng.normal(0, noise.sigma_m_per_sqrt_m * math.sqrt(dist)) if dist else 0.0
+    sth = rng.normal(0, math.radians(noise.sigma_deg_per_sqrt_rad) * math.sqrt(rot + dist))
+    dth = (inc.theta * (1.0 + noise.rotation_scale_error)
+           + math.radians(noise.heading_bias_deg_per_m) * dist + sth)
+    return Pose2D(inc.x * scale + sx, inc.y * scale, dth)
+
+
+def _box_visible(world: World, box: Box, center: tuple[float, float], pose: Pose2D,
+                 angles: np.ndarray, laser: LaserModel, t: float) -> bool:
+    spot = box.spot
+    box.spot = box.spots.index(center)
+    segs, owner, discs, disc_owner, names = _world_geometry(world, t)
+    box.spot = spot
+    _, hit = ray_cast(pose, angles, segs, owner, discs, disc_owner, laser.max_range_m)
+    return names.index(box.id) in hit
+
+
+def _try_relocate(world: World, box: Box, pose: Pose2D, angles: np.ndarray,
+                  laser: LaserModel, t: float, truth: Truth) -> bool:
+    """Move ``box`` to its next spot if the view condition holds now; record the event."""
+    old, new = box.center, box.spots[(box.spot + 1) % len(box.spots)]
+    seen = (_box_visible(world, box, old, pose, angles, laser, t)
+            or _box_visible(world, box, new, pose, angles, laser, t))
+    if seen != world.relocate_in_view:
+        return False
+    box.spot = (box.spot + 1) % len(box.spots)
+    truth.objects[box.id]["positions"].append([t, list(new)])
+    truth.events.append({"time": t, "object": box.id, "from": list(old), "to": list(new),
+                         "in_view": seen})
+    return True

@@ -1,0 +1,226 @@
+"""The Carmen reader: every record type, the beam-angle rule, quirks and bad input."""
+
+from __future__ import annotations
+
+import gzip
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dynslam_cli.errors import InputError
+from formats import ReaderOptions, open_log
+from formats.carmen import carmen_beam_angles
+from tests.conftest import flaser
+
+
+def read(path: Path | str, **options):
+    source, entry, reader = open_log(str(path), ReaderOptions(**options))
+    try:
+        return entry.name, list(reader.scans()), reader.stats
+    finally:
+        source.close()
+
+
+def write(tmp_path: Path, text: str, name: str = "log.clf") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_flaser_uses_second_pose_triple_and_mounting_offset(tmp_path):
+    line = ("FLASER 3 1.0 2.0 3.0 1.2 2.0 0.5 1.0 2.0 0.5 10.5 host 10.6\n")
+    _, scans, stats = read(write(tmp_path, "# CARMEN Logfile\n" + line))
+    (s,) = scans
+    assert (s.odom.x, s.odom.y, s.odom.theta) == (1.0, 2.0, 0.5)
+    assert math.hypot(s.laser.x, s.laser.y) == pytest.approx(0.2)
+    assert s.stamp == 10.5 and s.max_range == 80.0
+    assert list(s.ranges) == [1.0, 2.0, 3.0]
+    assert stats.records["#comment"] == 1
+
+
+@pytest.mark.parametrize(("n", "step_deg"), [(180, 1.0), (181, 1.0), (360, 0.5), (361, 0.5),
+                                             (91, 2.0)])
+def test_carmen_beam_rule(n, step_deg):
+    start, step = carmen_beam_angles(n)
+    assert start == pytest.approx(-math.pi / 2)
+    assert step == pytest.approx(math.radians(step_deg))
+
+
+def test_flaser_angles_from_param_and_override(tmp_path):
+    text = ("PARAM laser_front_laser_fov 100 nohost 0\nPARAM laser_front_laser_max_range 8 x 0\n"
+            + flaser(n=11))
+    _, (s,), _ = read(write(tmp_path, text))
+    assert s.angles[0] == pytest.approx(math.radians(-50))
+    assert s.angles[-1] == pytest.approx(math.radians(50))
+    assert s.max_range == 8.0
+    _, (s,), _ = read(write(tmp_path, flaser(n=11)), fov_deg=200.0)
+    assert s.angles[-1] - s.angles[0] == pytest.approx(math.radians(200))
+
+
+def test_rlaser_is_the_rear_laser(tmp_path):
+    text = flaser() + flaser(t=2).replace("FLASER", "RLASER")
+    _, scans, _stats = read(write(tmp_path, text), laser="rear")
+    assert [s.stamp for s in scans] == [2.0]
+    _, scans, _ = read(write(tmp_path, text))
+    assert [s.stamp for s in scans] == [1.0]
+
+
+def test_robotlaser1_angles_and_offset(tmp_path):
+    ranges = "1 2 3 4"
+    line = (f"ROBOTLASER1 0 -0.3 0.6 0.2 30.0 0.01 0 4 {ranges} 2 9 9 "
+            "1.1 0 0.2 1.0 0 0.2 0 0 0 0 0 5.0 host 5.0\n")
+    _, (s,), _ = read(write(tmp_path, line, "x.log"))
+    np.testing.assert_allclose(s.angles, [-0.3, -0.1, 0.1, 0.3])
+    assert s.max_range == 30.0
+    assert s.odom.x == 1.0 and s.odom.theta == pytest.approx(0.2)
+    assert math.hypot(s.laser.x, s.laser.y) == pytest.approx(0.1)
+    assert s.laser.theta == pytest.approx(0)
+
+
+def test_rawlaser_odometry_interpolated_from_odom(tmp_path):
+    text = ("ODOM 0 0 0 0 0 0 1.0 h 1.0\n"
+            "RAWLASER1 0 -1.5 3.0 1.5 20 0.01 0 3 1 2 3 0 1.5 h 1.5\n"
+            "ODOM 2 4 1.0 0 0 0 2.0 h 2.0\n"
+            "RAWLASER1 0 -1.5 3.0 1.5 20 0.01 0 3 1 2 3 0 3.0 h 3.0\n")
+    _, scans, stats = read(write(tmp_path, text))
+    assert [(s.odom.x, s.odom.y, s.odom.theta) for s in scans] == [
+        pytest.approx((1.0, 2.0, 0.5)), pytest.approx((2.0, 4.0, 1.0))]
+    assert stats.warnings["scan after the last ODOM: odometry held"] == 1
+
+
+def test_laser3_without_pose_uses_odom(tmp_path):
+    text = "ODOM 1 1 0 0 0 0 1.0 h 1.0\nLASER3 3 1 2 3 1.0 h 1.0\nODOM 1 1 0 0 0 0 2 h 2\n"
+    _, (s,), _ = read(write(tmp_path, text), laser="3")
+    assert (s.odom.x, s.odom.y) == (1.0, 1.0)
+
+
+def test_unknown_and_unused_records_counted(tmp_path):
+    text = "FOO 1 2 3\nTRUEPOS 0 0 0 0 0 0 1 h 1\nNEFF 30\n" + flaser()
+    _, scans, stats = read(write(tmp_path, text))
+    assert len(scans) == 1
+    assert stats.records["FOO"] == 1 and stats.records["TRUEPOS"] == 1
+    assert stats.warnings["unknown record type FOO (ignored)"] == 1
+
+
+def test_duplicate_laser_kind_skipped(tmp_path):
+    robot = ("ROBOTLASER1 0 -0.3 0.6 0.2 30.0 0.01 0 4 1 2 3 4 0 "
+             "0 0 0 0 0 0 0 0 0 0 0 2.0 host 2.0\n")
+    _, scans, stats = read(write(tmp_path, flaser() + robot))
+    assert len(scans) == 1
+    assert sum(stats.skipped.values()) == 1
+
+
+def test_gzip_by_suffix_and_by_magic(tmp_path):
+    data = gzip.compress((flaser() + flaser(t=2)).encode())
+    (tmp_path / "a.log.gz").write_bytes(data)
+    (tmp_path / "b.clf").write_bytes(data)
+    assert len(read(tmp_path / "a.log.gz")[1]) == 2
+    assert len(read(tmp_path / "b.clf")[1]) == 2
+
+
+def test_truncated_gzip_is_a_clear_error(tmp_path):
+    data = gzip.compress("".join(flaser(t=i) for i in range(1, 200)).encode())
+    (tmp_path / "a.log.gz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="damaged or truncated"):
+        read(tmp_path / "a.log.gz")
+
+
+def test_stdin_is_read(tmp_path):
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "dynslam_cli", "process", "-", "-o", str(out),
+                           "-q"], input=(flaser() + flaser(t=2)).encode(), capture_output=True)
+    assert proc.returncode == 0, proc.stderr
+    assert len((out / "trajectory.tum").read_text().splitlines()) == 2
+
+
+@pytest.mark.parametrize(("text", "line", "message"), [
+    ("FLASER 5 1 2 3\n", 1, "FLASER has 4 fields, expected 15"),
+    (flaser() + "FLASER 5 1 2 x 4 5 0 0 0 0 0 0 1 h 1\n", 2, r"field 4 \('x'\) is not a number"),
+    (flaser(n=4).replace("FLASER 4", "FLASER 6"), 1, "has 14 fields, expected 16 for 6 beams"),
+    ("ODOM 1 2\n" + flaser(), 1, "ODOM has 2 fields"),
+    ("FLASER -3 1 2\n", 1, "beam count -3 is negative"),
+    ("FLASER five 1 2\n", 1, "should be a beam count"),
+])
+def test_malformed_lines_are_errors_with_file_and_line(tmp_path, text, line, message):
+    p = write(tmp_path, text)
+    with pytest.raises(InputError, match=message) as info:
+        read(p)
+    assert info.value.line == line
+    assert str(info.value).startswith(f"{p}:{line}: ")
+
+
+def test_bad_ranges_counted_not_fatal(tmp_path):
+    text = flaser(n=4).replace("2.000 2.000 2.000 2.000", "nan -1 inf 2.0")
+    _, (s,), stats = read(write(tmp_path, text))
+    assert np.isnan(s.ranges[0]) and np.isnan(s.ranges[1]) and np.isposinf(s.ranges[2])
+    assert stats.warnings["invalid ranges (NaN or negative): beam dropped"] == 2
+    assert stats.warnings["+inf ranges: no return"] == 1
+
+
+def test_nonfinite_pose_skips_scan(tmp_path):
+    _, scans, stats = read(write(tmp_path, flaser(pose=(math.nan, 0, 0)) + flaser(t=2)))
+    assert len(scans) == 1 and stats.skipped["pose is NaN or infinite"] == 1
+
+
+def test_time_going_backwards_is_kept_and_counted(tmp_path):
+    _, scans, stats = read(write(tmp_path, flaser(t=5) + flaser(t=3) + flaser(t=3)))
+    assert [s.stamp for s in scans] == [5, 3, 3]
+    assert stats.warnings["time stamp does not increase (scan kept in file order)"] == 2
+
+
+def test_damaged_last_line_is_skipped(tmp_path):
+    _, scans, stats = read(write(tmp_path, flaser() + flaser(t=2)[:40]))
+    assert len(scans) == 1
+    assert stats.skipped["damaged last line (log cut off while written)"] == 1
+
+
+def test_empty_log_and_no_laser_are_errors(tmp_path):
+    with pytest.raises(InputError, match="empty log"):
+        read(write(tmp_path, ""))
+    with pytest.raises(InputError, match="no FLASER/RAWLASER1/ROBOTLASER1 records"):
+        read(write(tmp_path, "ODOM 0 0 0 0 0 0 1 h 1\n"))
+
+
+def test_unknown_format_is_an_error(tmp_path):
+    with pytest.raises(InputError, match="cannot tell the log format"):
+        read(write(tmp_path, "hello world\n", "x.txt"))
+
+
+# -- the real logs --------------------------------------------------------------------------
+def test_mit_csail(datasets):
+    fmt, scans, stats = read(datasets / "carmen/mit-csail.clf")
+    assert fmt == "carmen" and len(scans) == 1988
+    assert len(scans[0].ranges) == 361
+    assert scans[0].angles[1] - scans[0].angles[0] == pytest.approx(math.radians(0.5))
+    assert not stats.skipped
+
+
+def test_csail_robotlaser1(datasets):
+    _, scans, _ = read(datasets / "carmen/csail-robotlaser1.log")
+    assert len(scans) == 686
+    assert scans[0].angles[0] == pytest.approx(-1.570796)
+    assert scans[0].max_range == 80.0
+
+
+def test_zaragoza_nan_readings_and_zero_stamps(datasets):
+    _, scans, stats = read(datasets / "carmen/zaragoza-laserazosSM3.log")
+    assert len(scans) == 778
+    assert stats.warnings["invalid ranges (NaN or negative): beam dropped"] > 0
+
+
+def test_zaragoza_truncated_fields_clear_error(datasets):
+    path = datasets / "carmen/zaragoza-laserazosSM3-truncated-fields.log"
+    with pytest.raises(InputError, match="timestamp and host fields are missing") as info:
+        read(path)
+    assert info.value.line == 1
+
+
+@pytest.mark.parametrize("name", ["belgioioso", "csail", "freiburg-campus", "orebro",
+                                  "infinite-corridor", "intel", "fhw"])
+def test_radish_quirks_never_crash(datasets, name):
+    _, scans, stats = read(datasets / f"carmen/radish-corrected/{name}-corrected.log.gz")
+    assert len(scans) == stats.records["FLASER"]

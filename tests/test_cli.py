@@ -1,0 +1,159 @@
+"""The command line as a user meets it: outputs, exit codes, messages, atomicity."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from formats.outdir import OUTPUT_FILES
+from formats.tum import read_tum
+from tests.conftest import SAMPLES, flaser
+
+SAMPLE = SAMPLES / "hall" / "hall.log"
+
+
+def contract_ok(folder) -> None:
+    assert sorted(p.name for p in folder.iterdir()) == sorted(OUTPUT_FILES)
+
+
+def test_process_sample_writes_whole_contract(cli, tmp_path):
+    out = tmp_path / "out"
+    r = cli("process", SAMPLE, "-o", out, "-q")
+    assert r.exit_code == 0, r.output
+    assert r.stdout.strip() == str(out)
+    contract_ok(out)
+    summary = json.loads((out / "summary.json").read_text())
+    n = summary["scans_processed"]
+    assert n == summary["reader"]["scans"] == len(read_tum(out / "trajectory.tum")) > 100
+    assert summary["input"]["format"] == "carmen"
+    assert summary["config"]["map"]["resolution_m"] == 0.05
+    assert (out / "landmarks.csv").read_text().startswith("id,x,y,kind,class,observations")
+
+
+def test_same_input_gives_byte_identical_outputs(cli, tmp_path):
+    for name in ("a", "b"):
+        assert cli("process", SAMPLE, "-o", tmp_path / name, "-q").exit_code == 0
+    for f in OUTPUT_FILES:
+        if f != "summary.json":
+            assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
+    a, b = (json.loads((tmp_path / n / "summary.json").read_text()) for n in "ab")
+    for timing in ("wall_time_s", "peak_rss_mb"):
+        a.pop(timing), b.pop(timing)
+    assert a == b
+
+
+def test_existing_output_refused_unless_force(cli, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    r = cli("process", SAMPLE, "-o", out)
+    assert r.exit_code == 1
+    assert "exists; use --force" in r.stderr
+    assert (out / "keep.txt").exists()
+    assert cli("process", SAMPLE, "-o", out, "--force", "-q").exit_code == 0
+    contract_ok(out)
+
+
+def test_failed_run_leaves_nothing_behind(cli, tmp_path):
+    bad = tmp_path / "bad.log"
+    bad.write_text(flaser() + "FLASER 5 1 2 x\n" + flaser(t=3))
+    r = cli("process", bad, "-o", tmp_path / "out")
+    assert r.exit_code == 1
+    assert r.stderr.strip() == (f"dynslam: error: {bad}:2: FLASER has 4 fields, expected 15 "
+                                "for 5 beams + laser pose + robot pose")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.log"]
+
+
+def test_failure_while_writing_removes_partial_folder(cli, tmp_path, monkeypatch):
+    import formats.outdir
+
+    def broken(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(formats.outdir, "write_tum", broken)
+    with pytest.raises(OSError):
+        cli("process", SAMPLE, "-o", tmp_path / "out", "-q")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_interrupt_leaves_nothing_and_exits_130(tmp_path):
+    # A real SIGINT while a log streams in on stdin (the writer keeps the pipe open).
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "process", "-", "-o",
+                             str(tmp_path / "out"), "-q"], stdin=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdin is not None
+    proc.stdin.write("".join(flaser(t=i) for i in range(1, 500)).encode())
+    proc.stdin.flush()
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert b"Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_config_exit_1(cli, tmp_path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[map]\nsize = 3\n")
+    r = cli("process", SAMPLE, "-o", tmp_path / "o", "--config", cfg)
+    assert r.exit_code == 1 and "unknown key(s) size" in r.stderr
+    assert "Traceback" not in r.output
+
+
+def test_usage_errors_exit_2(cli, tmp_path):
+    assert cli("process", tmp_path / "missing.log").exit_code == 2
+    assert cli("process", SAMPLE, "--resolution", "fine").exit_code == 2
+
+
+def test_help_teaches_with_examples(cli):
+    r = cli("process", "--help")
+    assert r.exit_code == 0 and "Examples:" in r.stdout and "--resolution" in r.stdout
+    assert cli("--version").stdout.startswith("dynslam, version ")
+
+
+def test_resolution_option_changes_map(cli, tmp_path):
+    assert cli("process", SAMPLE, "-o", tmp_path / "o", "--resolution", "0.2", "-q").exit_code == 0
+    assert "resolution: 0.200000" in (tmp_path / "o" / "static.yaml").read_text()
+
+
+def test_default_output_name(cli, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    log = tmp_path / "run.log.gz"
+    import gzip
+
+    log.write_bytes(gzip.compress((flaser() + flaser(t=2)).encode()))
+    r = cli("process", log, "-q")
+    assert r.exit_code == 0 and r.stdout.strip() == "run_dynslam"
+    contract_ok(tmp_path / "run_dynslam")
+
+
+@pytest.mark.parametrize(("name", "poses"), [("mit-csail.clf", 1988),
+                                            ("csail-robotlaser1.log", 686)])
+def test_real_logs_end_to_end(cli, datasets, tmp_path, name, poses):
+    r = cli("process", datasets / "carmen" / name, "-o", tmp_path / "o", "-q")
+    assert r.exit_code == 0, r.stderr
+    contract_ok(tmp_path / "o")
+    assert len(read_tum(tmp_path / "o" / "trajectory.tum")) == poses
+
+
+def test_every_radish_log_processes(cli, datasets, tmp_path):
+    logs = sorted((datasets / "carmen" / "radish-corrected").glob("*.log.gz"))
+    assert len(logs) == 13
+    for log in logs:
+        r = cli("process", log, "-o", tmp_path / log.name, "-q", "--resolution", "0.1")
+        assert r.exit_code == 0, (log, r.stderr)
+        contract_ok(tmp_path / log.name)
+
+
+def test_truncated_fields_log_exit_1_one_line(cli, datasets, tmp_path):
+    r = cli("process", datasets / "carmen/zaragoza-laserazosSM3-truncated-fields.log", "-o",
+            tmp_path / "o")
+    assert r.exit_code == 1
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert "zaragoza-laserazosSM3-truncated-fields.log:1: FLASER" in r.stderr

@@ -1,0 +1,28 @@
+from __future__ import annotations
+
+import pytest
+
+from dynslam_cli.config import load_config
+from dynslam_cli.errors import ConfigError
+
+
+def test_defaults_and_overrides(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("[map]\nresolution_m = 0.1\n[laser]\nclear_cap_m = 4\n")
+    c = load_config(p, {"map": {"p_hit": 0.7}})
+    assert c.map.resolution_m == 0.1 and c.laser.clear_cap_m == 4.0 and c.map.p_hit == 0.7
+    assert load_config().map.resolution_m == 0.05
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[map]\nresolutoin_m = 0.1\n", "unknown key"),
+    ("[mapp]\nx = 1\n", "unknown key"),
+    ("[map]\nresolution_m = 'fine'\n", "expected float"),
+    ("[map]\nresolution_m = -1.0\n", "must be > 0"),
+    ("[map\n", "not valid TOML"),
+])
+def test_bad_config_is_an_error(tmp_path, text, message):
+    p = tmp_path / "c.toml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(p)
