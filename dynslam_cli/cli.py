@@ -246,5 +246,82 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
     _guarded(work)
 
 
+@main.command()
+@click.argument("target", type=click.Path(exists=True, path_type=Path))
+@click.option("--truth", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="truth.json from 'dynslam simulate' (TARGET is an output folder).")
+@click.option("--relations", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="Kümmerle et al. relations file (TARGET is a folder or a .tum file).")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: bool) -> None:
+    """Score an output folder (or trajectory) against ground truth.
+
+    \b
+    With --truth: trajectory ATE after SE(2) alignment (and raw odometry's), static map
+    precision / recall / ghost rate, dynamic map precision, moved objects detected, vacated
+    places cleared, landmarks on true corners.
+    With --relations: the Kümmerle et al. (2009) relation metric (translational m,
+    rotational deg, mean ± std, plus squared errors and matched/unmatched counts).
+
+    \b
+    Examples:
+      dynslam evaluate hall_dynslam --truth samples/hall/truth.json
+      dynslam evaluate mit_dynslam/trajectory.tum --relations mit-csail.relations --json
+    """
+    if truth is None and relations is None:
+        raise click.UsageError("give --truth or --relations")
+
+    def work() -> None:
+        import json
+
+        from dynslam_cli.errors import InputError
+        from dynslam_cli.evaluate import MapThresholds, relation_errors, score_run
+        from formats.landmarks import read_landmarks
+        from formats.mapfile import read_map
+        from formats.relations import read_relations
+        from formats.truth import read_truth
+        from formats.tum import read_tum
+
+        folder = target if target.is_dir() else None
+        tum = folder / "trajectory.tum" if folder else target
+        report: dict[str, Any] = {"target": str(target)}
+        if truth is not None:
+            if folder is None:
+                raise InputError(str(target), "--truth needs an output folder, not a file")
+            static, dynamic = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
+            try:
+                with open(folder / "landmarks.csv", encoding="utf-8") as f:
+                    landmarks = read_landmarks(f)
+            except (OSError, KeyError, ValueError) as e:
+                raise InputError(str(folder / "landmarks.csv"), f"cannot read: {e}") from None
+            report["truth"] = score_run(
+                static.grid, dynamic.grid, read_tum(tum), landmarks, read_truth(truth),
+                MapThresholds(static.free_thresh, static.occupied_thresh))
+        if relations is not None:
+            report["relations"] = relation_errors(read_tum(tum), read_relations(relations))
+        if as_json:
+            click.echo(json.dumps(report, indent=2, sort_keys=True))
+        else:
+            click.echo(_table(report))
+
+    _guarded(work)
+
+
+def _table(report: dict[str, Any], indent: str = "") -> str:
+    """Nested dict → aligned 'key  value' lines."""
+    lines = []
+    for key, value in report.items():
+        if isinstance(value, dict):
+            lines.append(f"{indent}{key}")
+            lines.append(_table(value, indent + "  "))
+        else:
+            if isinstance(value, float):
+                value = f"{value:.4f}"
+            elif value is None:
+                value = "n/a"
+            lines.append(f"{indent}{key:<{max(1, 30 - len(indent))}} {value}")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
     main()

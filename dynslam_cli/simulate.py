@@ -40,9 +40,9 @@ class OdometryNoise:
 
     scale_error: float = 0.02
     """Systematic translation scale error (fraction)."""
-    heading_bias_deg_per_m: float = 0.25
+    heading_bias_deg_per_m: float = 0.1
     """Systematic heading drift per metre driven (degrees)."""
-    rotation_scale_error: float = 0.015
+    rotation_scale_error: float = 0.01
     """Systematic rotation scale error (fraction)."""
     sigma_m_per_sqrt_m: float = 0.01
     sigma_deg_per_sqrt_rad: float = 0.5
@@ -288,7 +288,8 @@ def _run(world: World, duration_s: float, rate_hz: float, seed: int, laser: Lase
     pose, odom = world.start, world.start
     target = 0
     n_steps = round(duration_s * rate_hz) + 1
-    event_times = [(k + 1) * duration_s / (world.relocations + 1)
+    # Relocations spread over the first 3/4 of the run, so the robot revisits afterwards.
+    event_times = [(k + 1) * 0.75 * duration_s / (world.relocations + 1)
                    for k in range(world.relocations)]
     next_event = 0
     for step in range(n_steps):

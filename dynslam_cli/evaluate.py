@@ -1,0 +1,347 @@
+"""Scores against the truth: trajectory (ATE), static and dynamic maps, moved objects,
+vacated places, landmarks; and the Kümmerle et al. (2009) relation metric.
+
+Everything here works on arrays and plain dicts (``truth.json`` as loaded); the CLI reads the
+files. Distances are in metres, angles in degrees where reported.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from dynslam_cli.geometry import wrap_angles
+from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.pipeline import Landmark
+
+UNKNOWN_BAND = 0.01  # |p − 0.5| within this is "never observed" (PGM quantisation included)
+
+
+# -- trajectory -----------------------------------------------------------------------------
+def align_se2(est: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
+    """Rigid 2D alignment (rotation + translation, no scale) of est (N×2) onto ref (N×2):
+    returns the aligned points and the rotation angle (Kabsch / Umeyama without scale)."""
+    mu_e, mu_r = est.mean(0), ref.mean(0)
+    h = (est - mu_e).T @ (ref - mu_r)
+    angle = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+    return (est - mu_e) @ rot.T + mu_r, angle
+
+
+def match_stamps(est: np.ndarray, ref: np.ndarray, max_dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i_est, i_ref) of stamps that agree within ``max_dt`` (nearest neighbour)."""
+    order = np.argsort(ref[:, 0], kind="stable")
+    ts = ref[order, 0]
+    j = np.clip(np.searchsorted(ts, est[:, 0]), 1, max(len(ts) - 1, 1))
+    left = np.abs(est[:, 0] - ts[j - 1]) <= np.abs(est[:, 0] - ts[np.minimum(j, len(ts) - 1)])
+    k = np.where(left, j - 1, np.minimum(j, len(ts) - 1))
+    ok = np.abs(est[:, 0] - ts[k]) <= max_dt
+    return np.flatnonzero(ok), order[k[ok]]
+
+
+def ate_rmse(est: np.ndarray, ref: np.ndarray, max_dt: float = 1e-3) -> float:
+    """Absolute trajectory error (RMSE of positions, m) after SE(2) alignment; rows are
+    (stamp, x, y, theta)."""
+    i, j = match_stamps(est, ref, max_dt)
+    if len(i) < 2:
+        return math.nan
+    aligned, _ = align_se2(est[i, 1:3], ref[j, 1:3])
+    return float(np.sqrt(np.mean(np.sum((aligned - ref[j, 1:3]) ** 2, axis=1))))
+
+
+# -- geometry of the truth ------------------------------------------------------------------
+def distance_to_segments(points: np.ndarray, segs: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Distance of each point (N×2) to the nearest segment (K×4), in chunks."""
+    if len(segs) == 0:
+        return np.full(len(points), np.inf)
+    a, ab = segs[:, :2], segs[:, 2:] - segs[:, :2]
+    ab2 = np.maximum((ab ** 2).sum(1), 1e-18)
+    out = np.empty(len(points))
+    for s in range(0, len(points), chunk):
+        p = points[s:s + chunk, None, :]
+        t = np.clip(((p - a) * ab).sum(-1) / ab2, 0.0, 1.0)
+        d = p - (a + t[..., None] * ab)
+        out[s:s + chunk] = np.sqrt((d ** 2).sum(-1)).min(1)
+    return out
+
+
+def box_segments(center: list[float], size: list[float]) -> np.ndarray:
+    cx, cy = center
+    hx, hy = size[0] / 2, size[1] / 2
+    x0, x1, y0, y1 = cx - hx, cx + hx, cy - hy, cy + hy
+    return np.array([[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]])
+
+
+def in_box(points: np.ndarray, center: list[float], size: list[float], margin: float
+           ) -> np.ndarray:
+    return ((np.abs(points[:, 0] - center[0]) <= size[0] / 2 + margin)
+            & (np.abs(points[:, 1] - center[1]) <= size[1] / 2 + margin))
+
+
+def mover_distance(points: np.ndarray, objects: dict[str, Any]) -> np.ndarray:
+    """Distance of each point to anywhere a moving thing ever stood (box outlines at every
+    position, walkers' swept loops less their radius); 0 inside a box."""
+    best = np.full(len(points), np.inf)
+    for obj in objects.values():
+        if obj["kind"] == "box":
+            for _, center in obj["positions"]:
+                d = distance_to_segments(points, box_segments(center, obj["size"]))
+                d[in_box(points, center, obj["size"], 0.0)] = 0.0
+                best = np.minimum(best, d)
+        else:
+            loop = np.array(obj["loop"] + obj["loop"][:1], dtype=float)
+            segs = np.hstack((loop[:-1], loop[1:]))
+            best = np.minimum(best, np.maximum(distance_to_segments(points, segs)
+                                               - obj["radius"], 0.0))
+    return best
+
+
+def cell_centers(grid: OccupancyMap, mask: np.ndarray) -> np.ndarray:
+    rows, cols = np.nonzero(mask)
+    r = grid.resolution
+    return np.column_stack((grid.origin_x + (cols + 0.5) * r, grid.origin_y + (rows + 0.5) * r))
+
+
+def _window_any(mask: np.ndarray, radius_cells: int) -> np.ndarray:
+    """Cells with any True within a square window of the given radius."""
+    from scipy.ndimage import maximum_filter
+
+    return maximum_filter(mask, size=2 * radius_cells + 1, mode="constant", cval=False)
+
+
+def _cells_of(grid: OccupancyMap, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    col = np.floor((points[:, 0] - grid.origin_x) / grid.resolution).astype(int)
+    row = np.floor((points[:, 1] - grid.origin_y) / grid.resolution).astype(int)
+    ok = (row >= 0) & (row < grid.prob.shape[0]) & (col >= 0) & (col < grid.prob.shape[1])
+    return row, col, ok
+
+
+# -- visibility of places, from the truth ---------------------------------------------------
+def _seen_after(truth: dict[str, Any], obj_id: str, since: float, until: float) -> bool:
+    """Did any scan in [since, until) hit the object (it was seen in its place)?"""
+    poses = truth["poses"]
+    return any(since <= poses[k][0] < until and obj_id in hits
+               for k, hits in enumerate(truth["hits"]))
+
+
+def _place_seen_empty(truth: dict[str, Any], center: list[float], since: float, until: float,
+                      max_range: float, fov: float, beams: int) -> bool:
+    """Did a beam of a scan in [since, until) pass over the place's centre unobstructed by
+    walls? (Ray-casting from the true poses against the static walls.)"""
+    walls = np.asarray(truth["walls"], dtype=float)
+    c = np.asarray(center, dtype=float)
+    for t, x, y, th in truth["poses"]:
+        if not since <= t < until:
+            continue
+        v = c - (x, y)
+        dist = float(np.hypot(*v))
+        if dist > max_range - 0.1 or dist < 0.2:
+            continue
+        bearing = math.atan2(v[1], v[0]) - th
+        if abs(math.remainder(bearing, 2 * math.pi)) > fov / 2:
+            continue
+        beyond = c + 0.3 * v / dist  # the beam must reach past the centre
+        seg = np.array([[x, y, *beyond]])
+        if not _segments_cross(seg[0], walls):
+            return True
+    return False
+
+
+def _segments_cross(s: np.ndarray, walls: np.ndarray) -> bool:
+    p, r = s[:2], s[2:] - s[:2]
+    q, e = walls[:, :2], walls[:, 2:] - walls[:, :2]
+    den = r[0] * e[:, 1] - r[1] * e[:, 0]
+    w = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+        u = (w[:, 0] * r[1] - w[:, 1] * r[0]) / den
+    return bool(np.any((np.abs(den) > 1e-12) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)))
+
+
+# -- the scores -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MapThresholds:
+    free: float
+    occupied: float
+
+
+def score_run(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
+              landmarks: list[Landmark], truth: dict[str, Any], thresholds: MapThresholds,
+              tolerance_m: float = 0.1) -> dict[str, Any]:
+    """All scores of one output folder against ``truth.json`` (see the module docstring)."""
+    walls = np.asarray(truth["walls"], dtype=float)
+    objects = truth["objects"]
+    ref = np.asarray(truth["poses"], dtype=float)
+    odom = np.asarray(truth["odometry"], dtype=float)
+    res = static.resolution
+    tol = max(tolerance_m, res)
+    occ_s = static.prob > thresholds.occupied
+    occ_d = dynamic.prob > thresholds.occupied
+
+    # Static map: precision, recall, ghosts.
+    pts_s = cell_centers(static, occ_s)
+    d_wall = distance_to_segments(pts_s, walls)
+    on_static = d_wall <= tol
+    ghost = ~on_static & (mover_distance(pts_s, objects) <= tol)
+    samples = _wall_samples(walls, res / 2)
+    row, col, ok = _cells_of(static, samples)
+    k = max(1, math.ceil(tol / res))
+    observed = _window_any(np.abs(static.prob - 0.5) > UNKNOWN_BAND, k)
+    found = _window_any(occ_s, k)
+    seen = np.zeros(len(samples), bool)
+    seen[ok] = observed[row[ok], col[ok]]
+    hit = np.zeros(len(samples), bool)
+    hit[ok] = found[row[ok], col[ok]]
+
+    # Dynamic map precision.
+    pts_d = cell_centers(dynamic, occ_d)
+    d_prec = mover_distance(pts_d, objects) <= tol
+
+    moved, vacated = _score_moves(static, dynamic, truth, thresholds, tol)
+    lm = _score_landmarks(landmarks, truth, objects, tol=max(0.2, 2 * res))
+    return {
+        "trajectory": {"ate_rmse_m": ate_rmse(trajectory, ref),
+                       "odometry_ate_rmse_m": ate_rmse(odom, ref), "poses": len(trajectory)},
+        "static_map": {"precision": _ratio(on_static.sum(), len(pts_s)),
+                       "recall": _ratio((hit & seen).sum(), seen.sum()),
+                       "ghost_rate": _ratio(ghost.sum(), len(pts_s)),
+                       "occupied_cells": len(pts_s)},
+        "dynamic_map": {"precision": _ratio(d_prec.sum(), len(pts_d)),
+                        "occupied_cells": len(pts_d),
+                        "moved_objects_detected": moved,
+                        "vacated_places_cleared": vacated},
+        "landmarks": lm,
+        "tolerance_m": tol,
+    }
+
+
+def _ratio(a: float, b: float) -> float | None:
+    return float(a) / float(b) if b else None
+
+
+def _wall_samples(walls: np.ndarray, step: float) -> np.ndarray:
+    out = []
+    for x1, y1, x2, y2 in walls:
+        n = max(2, math.ceil(math.hypot(x2 - x1, y2 - y1) / step) + 1)
+        f = np.linspace(0, 1, n)
+        out.append(np.column_stack((x1 + f * (x2 - x1), y1 + f * (y2 - y1))))
+    return np.vstack(out) if out else np.zeros((0, 2))
+
+
+def _footprint(grid: OccupancyMap, center: list[float], size: list[float],
+               walls: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the cells of a box footprint grown by tol, less cells near walls."""
+    r = grid.resolution
+    h, w = grid.prob.shape
+    cols = np.arange(w)
+    rows = np.arange(h)
+    xs = grid.origin_x + (cols + 0.5) * r
+    ys = grid.origin_y + (rows + 0.5) * r
+    cx = cols[np.abs(xs - center[0]) <= size[0] / 2 + tol]
+    ry = rows[np.abs(ys - center[1]) <= size[1] / 2 + tol]
+    rr, cc = np.meshgrid(ry, cx, indexing="ij")
+    rr, cc = rr.ravel(), cc.ravel()
+    pts = np.column_stack((grid.origin_x + (cc + 0.5) * r, grid.origin_y + (rr + 0.5) * r))
+    keep = distance_to_segments(pts, walls) > tol
+    return rr[keep], cc[keep]
+
+
+def _score_moves(static: OccupancyMap, dynamic: OccupancyMap, truth: dict[str, Any],
+                 th: MapThresholds, tol: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Table 4 style: every box's final place, if it had moved and was seen there afterwards,
+    must be occupied in D and not in S; every place a box left and that the robot then saw
+    empty (and no box stands on at the end) must not be occupied in S."""
+    walls = np.asarray(truth["walls"], dtype=float)
+    laser = truth.get("laser", {})
+    max_range = float(laser.get("max_range_m", 8.0))
+    fov = math.radians(float(laser.get("fov_deg", 180.0)))
+    beams = int(laser.get("beams", 181))
+    end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
+    detected = [0, 0]
+    cleared = [0, 0]
+    finals = [(o["positions"][-1][1], o["size"]) for o in truth["objects"].values()
+              if o["kind"] == "box"]
+    for obj_id, obj in truth["objects"].items():
+        if obj["kind"] != "box" or len(obj["positions"]) < 2:
+            continue
+        positions = obj["positions"]
+        t_last, final = positions[-1]
+        if _seen_after(truth, obj_id, t_last, end):
+            rr, cc = _footprint(dynamic, final, obj["size"], walls, tol)
+            if len(rr):
+                detected[1] += 1
+                in_d = (dynamic.prob[rr, cc] > th.occupied).any()
+                in_s = (static.prob[rr, cc] > th.occupied).any()
+                detected[0] += int(bool(in_d and not in_s))
+        for i, (_, place) in enumerate(positions[:-1]):
+            left = positions[i + 1][0]
+            if any(np.allclose(place, c) for c, _ in finals):
+                continue  # a box stands there at the end
+            back = [t for t, c in positions[i + 1:] if np.allclose(c, place)]
+            until = back[0] if back else end
+            if not _place_seen_empty(truth, place, left, until, max_range, fov, beams):
+                continue
+            rr, cc = _footprint(static, place, obj["size"], walls, 0.0)
+            if len(rr):
+                cleared[1] += 1
+                cleared[0] += int(not (static.prob[rr, cc] > th.occupied).any())
+    return ({"detected": detected[0], "of": detected[1], "rate": _ratio(*detected)},
+            {"cleared": cleared[0], "of": cleared[1], "rate": _ratio(*cleared)})
+
+
+def _score_landmarks(landmarks: list[Landmark], truth: dict[str, Any], objects: dict[str, Any],
+                     tol: float) -> dict[str, Any]:
+    static = [lm for lm in landmarks if lm.cls == "static"]
+    if not static:
+        return {"static": 0, "on_true_corners": None, "static_on_movers": 0}
+    pts = np.array([(lm.x, lm.y) for lm in static])
+    corners = np.asarray(truth.get("static_corners", []), dtype=float).reshape(-1, 2)
+    if len(corners):
+        d = np.sqrt(((pts[:, None, :] - corners[None, :, :]) ** 2).sum(-1)).min(1)
+    else:
+        d = np.full(len(pts), np.inf)
+    walls = np.asarray(truth["walls"], dtype=float)
+    on_movers = (mover_distance(pts, objects) <= tol) & (distance_to_segments(pts, walls) > tol)
+    return {"static": len(static), "on_true_corners": _ratio((d <= tol).sum(), len(pts)),
+            "static_on_movers": int(on_movers.sum())}
+
+
+# -- Kümmerle et al. (2009) relations -------------------------------------------------------
+def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float = 0.1
+                    ) -> dict[str, Any]:
+    """The relation metric as the Freiburg metricEvaluator reports it.
+
+    ``relations`` rows: t1 t2 x y z roll pitch yaw (pose at t2 in the frame of t1). Each
+    stamp is matched to the nearest estimated pose within ``max_dt``; the estimated relation
+    inv(P1)·P2 minus the reference, component-wise (angle wrapped), gives the translational
+    error sqrt(dx² + dy²) and the rotational error |dθ|.
+    """
+    i1, j1 = match_stamps(relations[:, [0]], trajectory, max_dt)
+    i2, j2 = match_stamps(relations[:, [1]], trajectory, max_dt)
+    have1 = np.full(len(relations), -1)
+    have1[i1] = j1
+    have2 = np.full(len(relations), -1)
+    have2[i2] = j2
+    ok = (have1 >= 0) & (have2 >= 0)
+    p1, p2 = trajectory[have1[ok]], trajectory[have2[ok]]
+    rel = relations[ok]
+    c, s = np.cos(p1[:, 3]), np.sin(p1[:, 3])
+    dx_w, dy_w = p2[:, 1] - p1[:, 1], p2[:, 2] - p1[:, 2]
+    ex, ey = c * dx_w + s * dy_w, -s * dx_w + c * dy_w
+    eth = wrap_angles(p2[:, 3] - p1[:, 3])
+    trans = np.hypot(ex - rel[:, 2], ey - rel[:, 3])
+    rot = np.degrees(np.abs(wrap_angles(eth - rel[:, 7])))
+
+    def stats(v: np.ndarray) -> dict[str, float | None]:
+        if not len(v):
+            return {"mean": None, "std": None}
+        return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0}
+
+    return {"relations": len(relations), "matched": int(ok.sum()),
+            "unmatched": int((~ok).sum()),
+            "translational_m": stats(trans), "translational_squared_m2": stats(trans ** 2),
+            "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2)}

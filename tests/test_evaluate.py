@@ -1,0 +1,156 @@
+"""The scorer is proven on known cases before it judges anything."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from dynslam_cli.evaluate import (
+    MapThresholds,
+    align_se2,
+    ate_rmse,
+    distance_to_segments,
+    relation_errors,
+    score_run,
+)
+from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.simulate import build_world, simulate
+from formats.relations import read_relations
+
+TH = MapThresholds(0.1, 0.9)
+
+
+def perfect_maps(truth: dict, res: float = 0.05) -> tuple[OccupancyMap, OccupancyMap]:
+    """The maps a perfect mapper would make: walls in S, boxes at their final place in D."""
+    walls = np.asarray(truth["walls"])
+    x0, y0 = walls[:, [0, 2]].min() - 1.5, walls[:, [1, 3]].min() - 1.5
+    w = int((walls[:, [0, 2]].max() + 1.5 - x0) / res)
+    h = int((walls[:, [1, 3]].max() + 1.5 - y0) / res)
+    cols, rows = np.meshgrid(np.arange(w), np.arange(h))
+    pts = np.column_stack((x0 + (cols.ravel() + 0.5) * res, y0 + (rows.ravel() + 0.5) * res))
+    s = np.where(distance_to_segments(pts, walls) <= res * 0.75, 1.0, 0.0).reshape(h, w)
+    d = np.zeros((h, w))
+    for obj in truth["objects"].values():
+        if obj["kind"] == "box":
+            (cx, cy), (sx, sy) = obj["positions"][-1][1], obj["size"]
+            inside = (np.abs(pts[:, 0] - cx) <= sx / 2) & (np.abs(pts[:, 1] - cy) <= sy / 2)
+            d[inside.reshape(h, w)] = 1.0
+    return (OccupancyMap(s, res, x0, y0), OccupancyMap(d, res, x0, y0))
+
+
+def run_truth(world: str, noise: float = 0.0, duration: float = 400.0) -> dict:
+    from dynslam_cli.simulate import OdometryNoise
+
+    steps, truth = simulate(build_world(world), duration, 5.0, 0,
+                            noise=OdometryNoise().scaled(noise))
+    for _ in steps:
+        pass
+    return json.loads(json.dumps({
+        "walls": truth.walls, "static_corners": truth.corners, "poses": truth.poses,
+        "odometry": truth.odometry, "objects": truth.objects, "events": truth.events,
+        "hits": truth.hits, "laser": {"max_range_m": 8.0, "fov_deg": 180.0, "beams": 181}}))
+
+
+def test_alignment_recovers_a_rigid_motion():
+    rng = np.random.default_rng(0)
+    ref = rng.normal(size=(50, 2)) * 5
+    a = 0.7
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    est = ref @ rot.T + (3.0, -2.0)
+    aligned, _ = align_se2(est, ref)
+    np.testing.assert_allclose(aligned, ref, atol=1e-9)
+    t = np.arange(50.0)
+    assert ate_rmse(np.column_stack((t, est, t)), np.column_stack((t, ref, t))) < 1e-9
+
+
+@pytest.mark.parametrize("world", ["arena", "corridors"])
+def test_truth_itself_scores_perfectly(world):
+    truth = run_truth(world)
+    static, dynamic = perfect_maps(truth)
+    traj = np.asarray(truth["poses"])
+    r = score_run(static, dynamic, traj, [], truth, TH)
+    assert r["trajectory"]["ate_rmse_m"] == pytest.approx(0, abs=1e-9)
+    assert r["static_map"]["precision"] == 1.0
+    assert r["static_map"]["recall"] == 1.0
+    assert r["static_map"]["ghost_rate"] == 0.0
+    assert r["dynamic_map"]["precision"] == 1.0
+    moved, vacated = r["dynamic_map"]["moved_objects_detected"], r["dynamic_map"][
+        "vacated_places_cleared"]
+    assert moved["of"] >= 1 and moved["rate"] == 1.0
+    assert vacated["of"] >= 1 and vacated["rate"] == 1.0
+
+
+def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
+    from dynslam_cli.config import Config
+    from dynslam_cli.pipeline import run
+    from dynslam_cli.simulate import LaserModel
+    from formats import ReaderOptions, open_log
+    from formats.truth import write_carmen
+
+    steps, truth_obj = simulate(build_world("arena"), 400, 5.0, 0)
+    log = tmp_path / "arena.log"
+    with open(log, "w") as f:
+        write_carmen(f, steps, LaserModel(), "flaser", "arena")
+    source, _, reader = open_log(str(log), ReaderOptions())
+    result = run(reader.scans(), Config())
+    source.close()
+    truth = json.loads(json.dumps({
+        "walls": truth_obj.walls, "static_corners": truth_obj.corners, "poses": truth_obj.poses,
+        "odometry": truth_obj.odometry, "objects": truth_obj.objects,
+        "events": truth_obj.events, "hits": truth_obj.hits}))
+    r = score_run(result.static, result.dynamic, result.trajectory, [], truth, TH)
+    assert r["trajectory"]["ate_rmse_m"] > 0.5
+    assert r["trajectory"]["ate_rmse_m"] == pytest.approx(r["trajectory"]["odometry_ate_rmse_m"],
+                                                          rel=1e-3)
+    assert r["static_map"]["precision"] < 0.5
+    assert r["dynamic_map"]["moved_objects_detected"]["rate"] == 0.0
+
+
+def test_relation_metric_on_hand_computed_case():
+    # Estimated poses: straight line along x, 1 m apart, heading 0 except the last (10°).
+    traj = np.array([[0.0, 0, 0, 0], [1.0, 1, 0, 0], [2.0, 2, 0, math.radians(10)]])
+    rel = np.array([
+        [0.0, 1.0, 1.0, 0.0, 0, 0, 0, 0.0],                 # exact: error 0
+        [1.0, 2.0, 0.7, 0.4, 0, 0, 0, 0.0],                 # dx 0.3, dy -0.4 → 0.5 m, 10°
+        [0.0, 5.0, 1.0, 0.0, 0, 0, 0, 0.0],                 # t2 has no pose: unmatched
+    ])
+    r = relation_errors(traj, rel)
+    assert r["matched"] == 2 and r["unmatched"] == 1
+    assert r["translational_m"]["mean"] == pytest.approx(0.25)
+    assert r["translational_m"]["std"] == pytest.approx(math.sqrt(2 * 0.25 ** 2))
+    assert r["rotational_deg"]["mean"] == pytest.approx(5.0)
+    assert r["translational_squared_m2"]["mean"] == pytest.approx(0.125)
+
+
+def test_mit_csail_raw_odometry_relation_error(datasets):
+    """The published raw-odometry figure for MIT CSAIL is 1.68 m."""
+    from formats import ReaderOptions, open_log
+
+    source, _, reader = open_log(str(datasets / "carmen/mit-csail.clf"), ReaderOptions())
+    traj = np.array([(s.stamp, s.odom.x, s.odom.y, s.odom.theta) for s in reader.scans()])
+    source.close()
+    r = relation_errors(traj, read_relations(datasets / "relations/mit-csail.relations"))
+    assert r["matched"] == 1172 and r["unmatched"] == 0
+    assert r["translational_m"]["mean"] == pytest.approx(1.68, abs=0.005)
+
+
+def test_evaluate_cli_table_json_and_errors(cli, tmp_path):
+    from tests.conftest import SAMPLES
+
+    out = tmp_path / "o"
+    assert cli("process", SAMPLES / "hall/hall.log", "-o", out, "-q").exit_code == 0
+    r = cli("evaluate", out, "--truth", SAMPLES / "hall/truth.json")
+    assert r.exit_code == 0 and "ate_rmse_m" in r.stdout and "ghost_rate" in r.stdout
+    r = cli("evaluate", out, "--truth", SAMPLES / "hall/truth.json", "--json")
+    assert json.loads(r.stdout)["truth"]["trajectory"]["poses"] > 100
+    bad = tmp_path / "bad.json"
+    bad.write_text("{nope")
+    r = cli("evaluate", out, "--truth", bad)
+    assert r.exit_code == 1 and "not valid JSON" in r.stderr
+    rel = tmp_path / "x.relations"
+    rel.write_text("1 2 3\n")
+    r = cli("evaluate", out / "trajectory.tum", "--relations", rel)
+    assert r.exit_code == 1 and "x.relations:1: a relation has 8 fields" in r.stderr
