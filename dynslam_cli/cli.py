@@ -82,10 +82,15 @@ def main() -> None:
               help="Grid cell size in metres [default: 0.05].")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False,
               path_type=Path), help="TOML file with algorithm parameters (see README).")
+@click.option("--no-dynamic", is_flag=True,
+              help="One ordinary occupancy grid instead of S and D (paper Fig. 3b ablation).")
+@click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+              help="Also write the S ∪ D picture every SECONDS of log time into snapshots/ "
+                   "and snapshots/evolution.gif.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
             flaser_fov: float | None, resolution: float | None, config_file: Path | None,
-            quiet: bool) -> None:
+            no_dynamic: bool, snapshots: float | None, quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
     LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped) or - for standard input.
@@ -111,6 +116,8 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
     overrides = {"map": {"resolution_m": resolution}} if resolution is not None else {}
     if flaser_fov is not None:
         overrides.setdefault("laser", {})["fov_deg"] = flaser_fov
+    if no_dynamic:
+        overrides.setdefault("dynamic", {})["enabled"] = False
 
     def work() -> None:
         from dynslam_cli.config import load_config
@@ -118,7 +125,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
         config = load_config(config_file, overrides)
         check_target(target, force)
-        summary = _process(log, target, force, format_name, laser, config, quiet)
+        summary = _process(log, target, force, format_name, laser, config, quiet, snapshots)
         if not quiet:
             s = summary
             click.echo(f"dynslam: {s['scans_processed']} scans, {s['data_duration_s']:.1f} s of "
@@ -129,7 +136,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
 
 def _process(log: str, target: Path, force: bool, format_name: str | None, laser: str,
-             config: Any, quiet: bool) -> dict[str, Any]:
+             config: Any, quiet: bool, snapshot_every: float | None) -> dict[str, Any]:
     import resource
 
     from tqdm import tqdm
@@ -137,25 +144,32 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, laser
     from dynslam_cli.pipeline import run
     from formats import ReaderOptions, open_log
     from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
+    from formats.picture import SnapshotWriter
 
     start = time.perf_counter()
     options = ReaderOptions(laser=laser, fov_deg=config.laser.fov_deg)
     source, entry, reader = open_log(log, options, format_name)
-    try:
-        total = source.progress()[1]
-        with tqdm(total=total or None, unit="B", unit_scale=True, disable=quiet or None,
-                  desc=Path(source.name).name, file=sys.stderr, leave=False) as bar:
-
-            def on_scan(i: int) -> None:
-                if i % 20 == 0:
-                    bar.update(source.progress()[0] - bar.n)
-
-            result = run(reader.scans(), config, on_scan)
-    finally:
-        source.close()
-    _report_warnings(source.name, reader.stats)
-    stamps = result.trajectory[:, 0]
     with atomic_output_dir(target, force) as tmp:
+        snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
+                     if snapshot_every else None)
+        try:
+            total = source.progress()[1]
+            with tqdm(total=total or None, unit="B", unit_scale=True, disable=quiet or None,
+                      desc=Path(source.name).name, file=sys.stderr, leave=False) as bar:
+
+                def on_scan(i: int, scan: Any, slam: Any) -> None:
+                    if i % 20 == 0:
+                        bar.update(source.progress()[0] - bar.n)
+                    if snapshots is not None:
+                        snapshots.maybe_take(scan.stamp, slam)
+
+                result = run(reader.scans(), config, on_scan)
+        finally:
+            source.close()
+        if snapshots is not None:
+            snapshots.finish(result)
+        _report_warnings(source.name, reader.stats)
+        stamps = result.trajectory[:, 0]
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
             "input": {"path": source.name, "format": entry.name,
@@ -169,7 +183,7 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, laser
                     "resolution_m": result.static.resolution,
                     "origin": [result.static.origin_x, result.static.origin_y]},
             "config": config.to_dict(),
-            "outputs": list(OUTPUT_FILES),
+            "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
             "wall_time_s": round(time.perf_counter() - start, 3),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         }

@@ -63,11 +63,33 @@ class LaserConfig:
 
 
 @dataclass(frozen=True)
+class DynamicConfig:
+    """The dynamic map D (paper Sec. 3.2) and the neighbourhood rule (Sec. 5).
+
+    S uses the ``[map]`` values: ``p_hit`` is Table 1's *high*, ``p_miss`` its *low*.
+    """
+
+    enabled: bool = True
+    """False: one ordinary occupancy grid, D stays empty (``--no-dynamic``, paper Fig. 3b)."""
+    p_high: float = 0.97
+    """Table 2's *high*: a hit where S was Free (probability); two in a row make a cell
+    Occupied in D from Free."""
+    p_low: float = 0.0001
+    """Table 2's *low*. Very low so one free observation clears D: D keeps no history."""
+    p_clamp_min: float = 0.05
+    p_clamp_max: float = 0.99
+    neighbourhood_m: float = 0.1
+    """An end point is compared with S^{t-1} over a square window of this half-width
+    (metres), so small pose or rounding errors do not turn walls dynamic (Sec. 5)."""
+
+
+@dataclass(frozen=True)
 class Config:
     """All parameters of one run."""
 
     map: MapConfig = field(default_factory=MapConfig)
     laser: LaserConfig = field(default_factory=LaserConfig)
+    dynamic: DynamicConfig = field(default_factory=DynamicConfig)
 
     def validate(self) -> Config:
         """Check value ranges; returns self so calls chain."""
@@ -87,6 +109,14 @@ class Config:
              "laser.max_range_m must be > 0"),
             (self.laser.fov_deg is None or 0 < self.laser.fov_deg <= 360,
              "laser.fov_deg must be in (0, 360]"),
+        ]
+        d = self.dynamic
+        checks += [
+            (0.5 < d.p_high < 1, "dynamic.p_high must be in (0.5, 1)"),
+            (0 < d.p_low < 0.5, "dynamic.p_low must be in (0, 0.5)"),
+            (0 < d.p_clamp_min < 0.5 < d.p_clamp_max < 1,
+             "dynamic clamp must be 0 < p_clamp_min < 0.5 < p_clamp_max < 1"),
+            (0 <= d.neighbourhood_m <= 1.0, "dynamic.neighbourhood_m must be in [0, 1] m"),
         ]
         for ok, message in checks:
             if not ok:

@@ -8,14 +8,17 @@ files. Distances are in metres, angles in degrees where reported.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from dynslam_cli.config import Config
 from dynslam_cli.geometry import wrap_angles
 from dynslam_cli.grid import OccupancyMap
-from dynslam_cli.pipeline import Landmark
+from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
+from dynslam_cli.types import Scan
 
 UNKNOWN_BAND = 0.01  # |p − 0.5| within this is "never observed" (PGM quantisation included)
 
@@ -121,11 +124,29 @@ def _cells_of(grid: OccupancyMap, points: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 # -- visibility of places, from the truth ---------------------------------------------------
+SEEN_SCANS = 3  # scans that must hit an object before it counts as seen in its place
+
+
 def _seen_after(truth: dict[str, Any], obj_id: str, since: float, until: float) -> bool:
-    """Did any scan in [since, until) hit the object (it was seen in its place)?"""
+    """Did at least SEEN_SCANS scans in [since, until) hit the object in its place?"""
     poses = truth["poses"]
-    return any(since <= poses[k][0] < until and obj_id in hits
-               for k, hits in enumerate(truth["hits"]))
+    return sum(since <= poses[k][0] < until and obj_id in hits
+               for k, hits in enumerate(truth["hits"])) >= SEEN_SCANS
+
+
+def _known_free_before(truth: dict[str, Any], place: list[float], arrived: float) -> bool:
+    """Was the place seen empty before a box arrived there (so S could know it was Free)?
+    A place never seen empty is Unknown in S and a box there is static by Table 1, row 5."""
+    vacated = [o["positions"][i + 1][0] for o in truth["objects"].values()
+               if o["kind"] == "box" for i, (_, c) in enumerate(o["positions"][:-1])
+               if np.allclose(c, place) and o["positions"][i + 1][0] <= arrived]
+    occupied_at_start = any(np.allclose(o["positions"][0][1], place)
+                            for o in truth["objects"].values() if o["kind"] == "box")
+    if occupied_at_start and not vacated:
+        return False
+    max_range, fov, beams = _view(truth)
+    return _place_seen_empty(truth, place, max(vacated, default=0.0), arrived, max_range, fov,
+                             beams)
 
 
 def _place_seen_empty(truth: dict[str, Any], center: list[float], since: float, until: float,
@@ -250,47 +271,119 @@ def _footprint(grid: OccupancyMap, center: list[float], size: list[float],
     return rr[keep], cc[keep]
 
 
-def _score_moves(static: OccupancyMap, dynamic: OccupancyMap, truth: dict[str, Any],
-                 th: MapThresholds, tol: float) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Table 4 style: every box's final place, if it had moved and was seen there afterwards,
-    must be occupied in D and not in S; every place a box left and that the robot then saw
-    empty (and no box stands on at the end) must not be occupied in S."""
-    walls = np.asarray(truth["walls"], dtype=float)
+def _view(truth: dict[str, Any]) -> tuple[float, float, int]:
     laser = truth.get("laser", {})
-    max_range = float(laser.get("max_range_m", 8.0))
-    fov = math.radians(float(laser.get("fov_deg", 180.0)))
-    beams = int(laser.get("beams", 181))
+    return (float(laser.get("max_range_m", 8.0)), math.radians(float(laser.get("fov_deg", 180.0))),
+            int(laser.get("beams", 181)))
+
+
+def _detected(static: OccupancyMap, dynamic: OccupancyMap, place: list[float],
+              size: list[float], walls: np.ndarray, th: MapThresholds, tol: float) -> bool | None:
+    """A box at ``place``: occupied in D and nowhere in S? None if no cell is off the walls."""
+    rr, cc = _footprint(dynamic, place, size, walls, tol)
+    if not len(rr):
+        return None
+    return bool((dynamic.prob[rr, cc] > th.occupied).any()
+                and not (static.prob[rr, cc] > th.occupied).any())
+
+
+def _cleared(static: OccupancyMap, place: list[float], size: list[float], walls: np.ndarray,
+             th: MapThresholds) -> bool | None:
+    """A place a box left: no cell of its footprint Occupied in S? None if nothing to check."""
+    rr, cc = _footprint(static, place, size, walls, 0.0)
+    if not len(rr):
+        return None
+    return not bool((static.prob[rr, cc] > th.occupied).any())
+
+
+def _tally(results: list[bool | None]) -> dict[str, Any]:
+    judged = [r for r in results if r is not None]
+    return {"detected": sum(judged), "of": len(judged), "rate": _ratio(sum(judged), len(judged))}
+
+
+def _moves(truth: dict[str, Any]) -> Iterator[tuple[str, dict, int, float, float]]:
+    """(object id, object, index of position, arrived at, left at) for every box position."""
     end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
-    detected = [0, 0]
-    cleared = [0, 0]
-    finals = [(o["positions"][-1][1], o["size"]) for o in truth["objects"].values()
-              if o["kind"] == "box"]
     for obj_id, obj in truth["objects"].items():
         if obj["kind"] != "box" or len(obj["positions"]) < 2:
             continue
         positions = obj["positions"]
-        t_last, final = positions[-1]
-        if _seen_after(truth, obj_id, t_last, end):
-            rr, cc = _footprint(dynamic, final, obj["size"], walls, tol)
-            if len(rr):
-                detected[1] += 1
-                in_d = (dynamic.prob[rr, cc] > th.occupied).any()
-                in_s = (static.prob[rr, cc] > th.occupied).any()
-                detected[0] += int(bool(in_d and not in_s))
-        for i, (_, place) in enumerate(positions[:-1]):
-            left = positions[i + 1][0]
-            if any(np.allclose(place, c) for c, _ in finals):
-                continue  # a box stands there at the end
-            back = [t for t, c in positions[i + 1:] if np.allclose(c, place)]
-            until = back[0] if back else end
-            if not _place_seen_empty(truth, place, left, until, max_range, fov, beams):
-                continue
-            rr, cc = _footprint(static, place, obj["size"], walls, 0.0)
-            if len(rr):
-                cleared[1] += 1
-                cleared[0] += int(not (static.prob[rr, cc] > th.occupied).any())
-    return ({"detected": detected[0], "of": detected[1], "rate": _ratio(*detected)},
-            {"cleared": cleared[0], "of": cleared[1], "rate": _ratio(*cleared)})
+        for i, (t, _) in enumerate(positions):
+            yield obj_id, obj, i, t, positions[i + 1][0] if i + 1 < len(positions) else end
+
+
+def _score_moves(static: OccupancyMap, dynamic: OccupancyMap, truth: dict[str, Any],
+                 th: MapThresholds, tol: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Judged on the final maps: every box's final place, if it had moved there and was seen
+    there afterwards, must be occupied in D and not in S; every place a box left, that the
+    robot then saw empty and where no box stands at the end, must not be occupied in S."""
+    walls = np.asarray(truth["walls"], dtype=float)
+    max_range, fov, beams = _view(truth)
+    end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
+    finals = [o["positions"][-1][1] for o in truth["objects"].values() if o["kind"] == "box"]
+    detected, cleared = [], []
+    for obj_id, obj, i, arrived, left in _moves(truth):
+        place = obj["positions"][i][1]
+        if left >= end:  # the final place
+            if (i > 0 and _seen_after(truth, obj_id, arrived, end)
+                    and _known_free_before(truth, place, arrived)):
+                detected.append(_detected(static, dynamic, place, obj["size"], walls, th, tol))
+            continue
+        if any(np.allclose(place, c) for c in finals):
+            continue
+        back = [t for t, c in obj["positions"][i + 1:] if np.allclose(c, place)]
+        if _place_seen_empty(truth, place, left, back[0] if back else end, max_range, fov,
+                             beams):
+            cleared.append(_cleared(static, place, obj["size"], walls, th))
+    moved, vacated = _tally(detected), _tally(cleared)
+    vacated = {"cleared": vacated.pop("detected"), **vacated}
+    return moved, vacated
+
+
+def score_events(snapshots: list[tuple[float, OccupancyMap, OccupancyMap]],
+                 truth: dict[str, Any], thresholds: MapThresholds, tolerance_m: float = 0.1
+                 ) -> dict[str, Any]:
+    """The paper's Table 4, event by event. ``snapshots`` holds (time, S, D) taken just before
+    the scan at each relocation time and at the end of the run. Each relocation whose box was
+    seen at its new place before it moved again is *detected* if, in the snapshot taken when
+    it moved again (or at the end), the new place is occupied in D and not in S — else, if S
+    holds it, it was *detected static*. Each place a box left and the robot saw empty is
+    *cleared* if S is not occupied there in the snapshot before a box came back (or the end).
+    """
+    walls = np.asarray(truth["walls"], dtype=float)
+    max_range, fov, beams = _view(truth)
+    times = np.array([t for t, _, _ in snapshots])
+    tol = max(tolerance_m, snapshots[0][1].resolution)
+
+    def at(t: float) -> tuple[OccupancyMap, OccupancyMap]:
+        k = int(np.searchsorted(times, t - 1e-9))
+        _, s, d = snapshots[min(k, len(snapshots) - 1)]
+        return s, d
+
+    detected, static_hits, cleared = [], 0, []
+    for obj_id, obj, i, arrived, left in _moves(truth):
+        place = obj["positions"][i][1]
+        if (i > 0 and _seen_after(truth, obj_id, arrived, left)
+                and _known_free_before(truth, place, arrived)):
+            s, d = at(left)
+            ok = _detected(s, d, place, obj["size"], walls, thresholds, tol)
+            detected.append(ok)
+            if ok is False:
+                rr, cc = _footprint(s, place, obj["size"], walls, tol)
+                static_hits += int((s.prob[rr, cc] > thresholds.occupied).any())
+        later = [t for t, c in obj["positions"][i + 1:] if np.allclose(c, place)]
+        others = [t for o in truth["objects"].values() if o["kind"] == "box"
+                  for t, c in o["positions"] if t > left and np.allclose(c, place)]
+        until = min(later + others) if later or others else times[-1] + 1.0
+        if left <= times[-1] and _place_seen_empty(truth, place, left, until, max_range, fov,
+                                                   beams):
+            s, _ = at(until)
+            cleared.append(_cleared(s, place, obj["size"], walls, thresholds))
+    moved = _tally(detected)
+    moved["detected_static"] = static_hits
+    vacated = _tally(cleared)
+    return {"moved_objects_detected": moved,
+            "vacated_places_cleared": {"cleared": vacated.pop("detected"), **vacated}}
 
 
 def _score_landmarks(landmarks: list[Landmark], truth: dict[str, Any], objects: dict[str, Any],
@@ -345,3 +438,22 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
             "unmatched": int((~ok).sum()),
             "translational_m": stats(trans), "translational_squared_m2": stats(trans ** 2),
             "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2)}
+
+
+def snapshots_at(scans: Iterable[Scan], config: Config, times: list[float]
+                 ) -> tuple[SlamResult, list[tuple[float, OccupancyMap, OccupancyMap]]]:
+    """Run the pipeline and take (time, S, D) just before the first scan at or after each of
+    ``times``, and at the end (for :func:`score_events`)."""
+    slam = DynamicSlam(config)
+    pending = sorted(times)
+    snaps: list[tuple[float, OccupancyMap, OccupancyMap]] = []
+    last = 0.0
+    for scan in scans:
+        while pending and scan.stamp >= pending[0]:
+            snaps.append((pending.pop(0), slam.grids.snapshot("static"),
+                          slam.grids.snapshot("dynamic")))
+        slam.step(scan)
+        last = scan.stamp
+    snaps.append((last + 1.0, slam.grids.snapshot("static"), slam.grids.snapshot("dynamic")))
+    return slam.result(), snaps
+

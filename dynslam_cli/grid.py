@@ -51,8 +51,10 @@ class OccupancyMap:
 class GridStack:
     """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one growable grid."""
 
-    def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...]) -> None:
+    def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...],
+                 pad_cells: int = 1) -> None:
         self.resolution = resolution
+        self.pad = (pad_cells + 1) * resolution  # cells around every end point stay inside
         self.margin_cells = max(1, math.ceil(grow_margin / resolution))
         self.origin_col = 0  # world cell index of local column 0
         self.origin_row = 0
@@ -105,7 +107,8 @@ class GridStack:
                 max_range: float, min_range: float, clear_cap: float) -> Observation:
         """Trace every beam of one scan from the sensor pose.
 
-        A reading in (min_range, max_range) is a hit at its end and free space before it;
+        A reading in (min_range, max_range) is a hit at its end and free space up to one cell
+        before it;
         a reading >= max_range or +inf is "no return": free space up to ``clear_cap`` and no
         hit; NaN or <= min_range is invalid and ignored.
         """
@@ -117,16 +120,20 @@ class GridStack:
         length, ang, is_hit = length[used], angles[used] + sensor.theta, is_hit[used]
         cos, sin = np.cos(ang), np.sin(ang)
         ex, ey = sensor.x + length * cos, sensor.y + length * sin
+        pad = self.pad
         if len(length):
-            self.ensure(min(ex.min(), sensor.x), min(ey.min(), sensor.y),
-                        max(ex.max(), sensor.x), max(ey.max(), sensor.y))
+            self.ensure(min(ex.min(), sensor.x) - pad, min(ey.min(), sensor.y) - pad,
+                        max(ex.max(), sensor.x) + pad, max(ey.max(), sensor.y) + pad)
         else:
-            self.ensure(sensor.x, sensor.y, sensor.x, sensor.y)
+            self.ensure(sensor.x - pad, sensor.y - pad, sensor.x + pad, sensor.y + pad)
         hit = self.flat_index(ex[is_hit], ey[is_hit])
 
-        # Free space: sample each beam every cell length from the sensor to its end.
+        # Free space: sample each beam every cell length from the sensor, stopping one cell
+        # short of a hit: the cell a surface passes through is often partly free, and marking
+        # it free from one angle and hit from another would erode walls and flicker D.
         step = self.resolution
-        counts = np.ceil(length / step).astype(np.int64)
+        free_length = np.where(is_hit, np.maximum(length - step, 0.0), length)
+        counts = np.ceil(free_length / step).astype(np.int64)
         beam = np.repeat(np.arange(len(length)), counts)
         starts = np.cumsum(counts) - counts
         d = (np.arange(counts.sum()) - np.repeat(starts, counts)) * step
@@ -160,11 +167,3 @@ class GridStack:
                             origin_x=(self.origin_col + c0) * res,
                             origin_y=(self.origin_row + r0) * res)
 
-
-def update_ordinary(logodds: np.ndarray, obs: Observation, l_hit: float, l_miss: float,
-                    l_min: float, l_max: float) -> None:
-    """The classic log-odds occupancy update, for one layer in place (paper Eq. 12 with a
-    constant inverse sensor model: free cells get l_miss, hit cells l_hit)."""
-    flat = logodds.reshape(-1)
-    flat[obs.free] = np.clip(flat[obs.free] + l_miss, l_min, l_max)
-    flat[obs.hit] = np.clip(flat[obs.hit] + l_hit, l_min, l_max)

@@ -1,8 +1,10 @@
 """The SLAM loop: a stream of scans in; maps, landmarks and the trajectory out.
 
-Each step follows the paper: localize the robot (Sec. 4), then update the maps from what the
-scan observed (Sec. 3). This first version localizes by odometry alone and keeps one
-ordinary occupancy grid; the map frame is the odometry frame of the first scan.
+Each step follows the paper: localize the robot (Sec. 4), then classify what the scan saw
+against the previous static map S^{t-1} and update S (Eq. 12, Table 1) and D (Eq. 13,
+Table 2). This version localizes by odometry alone; the map frame is the odometry frame of
+the first scan. With ``dynamic.enabled = false`` S is one ordinary occupancy grid and D
+stays empty (the paper's Fig. 3b ablation).
 """
 
 from __future__ import annotations
@@ -14,8 +16,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynslam_cli.config import Config
+from dynslam_cli.dynamic import (
+    OCCUPIED,
+    TABLE_1,
+    TABLE_2,
+    InverseModel,
+    classify_neighbourhood,
+    classify_static,
+    neighbourhood_offsets,
+    radius_cells,
+)
 from dynslam_cli.geometry import compose
-from dynslam_cli.grid import GridStack, Observation, OccupancyMap, logit, update_ordinary
+from dynslam_cli.grid import GridStack, Observation, OccupancyMap
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -46,17 +58,31 @@ class DynamicSlam:
 
     def __init__(self, config: Config) -> None:
         self.config = config
-        m = config.map
-        self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"))
-        self._l_hit, self._l_miss = logit(m.p_hit), logit(m.p_miss)
-        self._l_min, self._l_max = logit(m.p_clamp_min), logit(m.p_clamp_max)
+        m, d = config.map, config.dynamic
+        self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
+        self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
+                               pad_cells=self._radius)
+        static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
+                                                       m.p_clamp_max)
+        self._static = static_model
+        self._dynamic = InverseModel.from_probabilities(d.p_high, d.p_low, d.p_clamp_min,
+                                                        d.p_clamp_max)
+        if d.enabled:
+            self._table_1 = static_model.table(TABLE_1)
+            self._table_2 = self._dynamic.table(TABLE_2)
+        else:  # an ordinary grid: every hit raises S, D is never touched
+            self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
+                                                for k in TABLE_1})
+            self._table_2 = None
         self._trajectory = array("d")
 
     def step(self, scan: Scan) -> Pose2D:
         """Process one scan; returns the robot's pose in the map frame."""
         pose = self.localize(scan)
         observation = self.observe(pose, scan)
-        self.update_static_map(observation)
+        free_prev, hit_prev = self.classify_against_static_map(observation)
+        self.update_static_map(observation, free_prev, hit_prev)
+        self.update_dynamic_map(observation, free_prev, hit_prev)
         self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))
         return pose
 
@@ -71,10 +97,31 @@ class DynamicSlam:
         return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
                                   max_range, laser.min_range_m, laser.clear_cap_m)
 
-    def update_static_map(self, observation: Observation) -> None:
-        """Ordinary log-odds update of the map (Eq. 12 with a fixed inverse sensor model)."""
-        update_ordinary(self.grids.layers["static"], observation, self._l_hit, self._l_miss,
-                        self._l_min, self._l_max)
+    def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the
+        neighbourhood of each cell hit (Sec. 5)."""
+        if self._table_2 is None:  # an ordinary grid: the state does not matter
+            return (np.zeros(len(obs.free), np.int8), np.zeros(len(obs.hit), np.int8))
+        m = self.config.map
+        s = self.grids.layers["static"].reshape(-1)
+        free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
+        offsets = neighbourhood_offsets(self._radius, self.grids.shape[1])
+        hit_prev = classify_neighbourhood(s, obs.hit, offsets, m.free_threshold,
+                                          m.occupied_threshold)
+        return free_prev, hit_prev
+
+    def update_static_map(self, obs: Observation, free_prev: np.ndarray,
+                          hit_prev: np.ndarray) -> None:
+        """Eq. 12 with Table 1 as the inverse sensor model."""
+        _apply_inverse_model(self.grids.layers["static"], obs, free_prev, hit_prev,
+                             self._table_1, self._static)
+
+    def update_dynamic_map(self, obs: Observation, free_prev: np.ndarray,
+                           hit_prev: np.ndarray) -> None:
+        """Eq. 13 with Table 2 as the inverse sensor model."""
+        if self._table_2 is not None:
+            _apply_inverse_model(self.grids.layers["dynamic"], obs, free_prev, hit_prev,
+                                 self._table_2, self._dynamic)
 
     def result(self) -> SlamResult:
         return SlamResult(
@@ -84,12 +131,24 @@ class DynamicSlam:
         )
 
 
+def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,
+                         hit_prev: np.ndarray, table: np.ndarray, model: InverseModel) -> None:
+    """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped.
+    Written by assignment, so a cell listed twice is updated once."""
+    flat = layer.reshape(-1)
+    flat[obs.free] = np.clip(flat[obs.free] + table[free_prev, 0], model.clamp_min,
+                             model.clamp_max)
+    flat[obs.hit] = np.clip(flat[obs.hit] + table[hit_prev, 1], model.clamp_min,
+                            model.clamp_max)
+
+
 def run(scans: Iterable[Scan], config: Config,
-        on_scan: Callable[[int], None] | None = None) -> SlamResult:
-    """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i)`` after each scan."""
+        on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None) -> SlamResult:
+    """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
+    after each scan (progress, snapshots)."""
     slam = DynamicSlam(config)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:
-            on_scan(i)
+            on_scan(i, scan, slam)
     return slam.result()

@@ -41,10 +41,10 @@ def perfect_maps(truth: dict, res: float = 0.05) -> tuple[OccupancyMap, Occupanc
     return (OccupancyMap(s, res, x0, y0), OccupancyMap(d, res, x0, y0))
 
 
-def run_truth(world: str, noise: float = 0.0, duration: float = 400.0) -> dict:
+def run_truth(world: str, noise: float = 0.0, duration: float = 600.0) -> dict:
     from dynslam_cli.simulate import OdometryNoise
 
-    steps, truth = simulate(build_world(world), duration, 5.0, 0,
+    steps, truth = simulate(build_world(world), duration, 10.0, 0,
                             noise=OdometryNoise().scaled(noise))
     for _ in steps:
         pass
@@ -79,7 +79,11 @@ def test_truth_itself_scores_perfectly(world):
     assert r["dynamic_map"]["precision"] == 1.0
     moved, vacated = r["dynamic_map"]["moved_objects_detected"], r["dynamic_map"][
         "vacated_places_cleared"]
-    assert moved["of"] >= 1 and moved["rate"] == 1.0
+    # Final maps judge a box's final place only if the robot saw it there after its last
+    # move (arena: yes; corridors: the last moves come too late in this run).
+    if world == "arena":
+        assert moved["of"] >= 1
+    assert moved["of"] == 0 or moved["rate"] == 1.0
     assert vacated["of"] >= 1 and vacated["rate"] == 1.0
 
 

@@ -20,7 +20,7 @@ def test_beam_marks_free_cells_then_a_hit():
     g = GridStack(0.1, 1.0, ("static",))
     obs = g.observe(Pose2D(0.05, 0.05, 0.0), np.array([1.0]), np.array([0.0]), 10.0, 0.01, 5.0)
     assert cells(g, obs.hit) == {(0, 10)}
-    assert cells(g, obs.free) == {(0, c) for c in range(10)}
+    assert cells(g, obs.free) == {(0, c) for c in range(9)}  # stops a cell short of the hit
 
 
 def test_no_return_clears_up_to_cap_and_marks_no_hit():
