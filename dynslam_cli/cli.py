@@ -58,7 +58,7 @@ def main() -> None:
     """dynslam: 2D laser SLAM in dynamic environments, over recorded robot logs.
 
     Builds a static map S and a dynamic map D (Wolf & Sukhatme 2005), a corner landmark map
-    and the corrected trajectory from Carmen/Radish/Freiburg logs.
+    (EKF-SLAM, Table 3) and the corrected trajectory from Carmen/Radish/Freiburg logs.
 
     \b
     Start with:
@@ -82,6 +82,9 @@ def main() -> None:
               help="Grid cell size in metres [default: 0.05].")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False,
               path_type=Path), help="TOML file with algorithm parameters (see README).")
+@click.option("--localization", type=click.Choice(["ekf", "odometry"]),
+              help="ekf: corner EKF-SLAM with scan-matched motion (default); odometry: the "
+                   "log's odometry alone (paper Fig. 3a ablation).")
 @click.option("--no-dynamic", is_flag=True,
               help="One ordinary occupancy grid instead of S and D (paper Fig. 3b ablation).")
 @click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
@@ -90,7 +93,8 @@ def main() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
             flaser_fov: float | None, resolution: float | None, config_file: Path | None,
-            no_dynamic: bool, snapshots: float | None, quiet: bool) -> None:
+            localization: str | None, no_dynamic: bool, snapshots: float | None,
+            quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
     LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped) or - for standard input.
@@ -118,6 +122,8 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         overrides.setdefault("laser", {})["fov_deg"] = flaser_fov
     if no_dynamic:
         overrides.setdefault("dynamic", {})["enabled"] = False
+    if localization is not None:
+        overrides.setdefault("ekf", {})["localization"] = localization
 
     def work() -> None:
         from dynslam_cli.config import load_config

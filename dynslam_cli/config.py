@@ -23,7 +23,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from dynslam_cli.corners import CornerConfig
 from dynslam_cli.errors import ConfigError
+from dynslam_cli.localization import EkfConfig
+from dynslam_cli.scanmatch import MatchConfig
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,9 @@ class Config:
     map: MapConfig = field(default_factory=MapConfig)
     laser: LaserConfig = field(default_factory=LaserConfig)
     dynamic: DynamicConfig = field(default_factory=DynamicConfig)
+    corners: CornerConfig = field(default_factory=CornerConfig)
+    ekf: EkfConfig = field(default_factory=EkfConfig)
+    match: MatchConfig = field(default_factory=MatchConfig)
 
     def validate(self) -> Config:
         """Check value ranges; returns self so calls chain."""
@@ -117,6 +123,15 @@ class Config:
             (0 < d.p_clamp_min < 0.5 < d.p_clamp_max < 1,
              "dynamic clamp must be 0 < p_clamp_min < 0.5 < p_clamp_max < 1"),
             (0 <= d.neighbourhood_m <= 1.0, "dynamic.neighbourhood_m must be in [0, 1] m"),
+        ]
+        e, c = self.ekf, self.corners
+        checks += [
+            (e.localization in ("ekf", "odometry"), "ekf.localization must be ekf or odometry"),
+            (e.gate_chi2 > 0 and e.search_radius_m > 0, "ekf gate values must be > 0"),
+            (e.confirm_observations >= 1, "ekf.confirm_observations must be >= 1"),
+            (e.max_landmarks >= 1, "ekf.max_landmarks must be >= 1"),
+            (c.min_points >= 3 and c.min_length_m > 0, "corners: min_points >= 3, length > 0"),
+            (0 < c.min_angle_deg < 90, "corners.min_angle_deg must be in (0, 90)"),
         ]
         for ok, message in checks:
             if not ok:

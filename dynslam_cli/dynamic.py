@@ -40,6 +40,14 @@ TABLE_2 = {
 }
 
 
+# Table 3: static and dynamic landmark classification, by the landmark's place in S.
+TABLE_3 = {
+    FREE: "dynamic",
+    UNKNOWN: "dynamic",
+    OCCUPIED: "static",      # only these correct the robot's pose
+}
+
+
 @dataclass(frozen=True)
 class InverseModel:
     """High/low values (log-odds) of one inverse sensor model and the map's clamp."""

@@ -1,10 +1,14 @@
 """The SLAM loop: a stream of scans in; maps, landmarks and the trajectory out.
 
-Each step follows the paper: localize the robot (Sec. 4), then classify what the scan saw
-against the previous static map S^{t-1} and update S (Eq. 12, Table 1) and D (Eq. 13,
-Table 2). This version localizes by odometry alone; the map frame is the odometry frame of
-the first scan. With ``dynamic.enabled = false`` S is one ordinary occupancy grid and D
-stays empty (the paper's Fig. 3b ablation).
+Each step follows the paper: localize the robot by EKF-SLAM over corner landmarks (Sec. 4:
+predict from odometry, detect corners, associate, classify landmarks by S^{t-1} with Table 3,
+update with the static ones), then classify what the scan saw against S^{t-1} and update S
+(Eq. 12, Table 1) and D (Eq. 13, Table 2) from the corrected pose. The map frame is the
+odometry frame of the first scan.
+
+Ablations (paper Fig. 3): ``ekf.localization = "odometry"`` uses odometry alone;
+``dynamic.enabled = false`` keeps one ordinary grid, D stays empty and every landmark
+counts as static.
 """
 
 from __future__ import annotations
@@ -20,14 +24,17 @@ from dynslam_cli.dynamic import (
     OCCUPIED,
     TABLE_1,
     TABLE_2,
+    UNKNOWN,
     InverseModel,
     classify_neighbourhood,
     classify_static,
     neighbourhood_offsets,
     radius_cells,
 )
-from dynslam_cli.geometry import compose
+from dynslam_cli.geometry import compose, relative
 from dynslam_cli.grid import GridStack, Observation, OccupancyMap
+from dynslam_cli.localization import CornerSlam
+from dynslam_cli.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -41,6 +48,9 @@ class Landmark:
     kind: str  # "convex" | "concave"
     cls: str  # "static" | "dynamic"
     observations: int
+    cov_xx: float = 0.0
+    cov_xy: float = 0.0
+    cov_yy: float = 0.0
 
 
 @dataclass
@@ -75,6 +85,10 @@ class DynamicSlam:
                                                 for k in TABLE_1})
             self._table_2 = None
         self._trajectory = array("d")
+        self._slam: CornerSlam | None = None
+        self._last_odom: Pose2D | None = None
+        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
+                         else None)
 
     def step(self, scan: Scan) -> Pose2D:
         """Process one scan; returns the robot's pose in the map frame."""
@@ -87,8 +101,49 @@ class DynamicSlam:
         return pose
 
     def localize(self, scan: Scan) -> Pose2D:
-        """Robot pose at the scan: odometry alone (map frame = first scan's odometry frame)."""
-        return scan.odom
+        """Robot pose at the scan in the map frame (= the first scan's odometry frame)."""
+        if self.config.ekf.localization == "odometry":
+            return scan.odom
+        increment, matched = self.motion_since_last_scan(scan)
+        if self._slam is None:
+            self._slam = CornerSlam(scan.odom, self.config.ekf, self.config.corners)
+            return scan.odom
+        slam = self._slam
+        slam.predict(increment, matched)
+        observations = slam.detect(scan)
+        pairs, ambiguous = slam.associate(observations)
+        slam.classify(self.classify_landmarks(slam.landmark_positions()))
+        slam.correct(pairs)
+        slam.add_new(observations, set(ambiguous))
+        slam.prune()
+        slam.scan_index += 1
+        return slam.pose
+
+    def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
+        """The control input: scan-matched motion where the match is good, else odometry."""
+        if self._matcher is not None:
+            return self._matcher.increment(scan)
+        last, self._last_odom = self._last_odom, scan.odom
+        return (relative(last, scan.odom) if last is not None else Pose2D()), False
+
+    def classify_landmarks(self, positions: np.ndarray) -> np.ndarray:
+        """State of S^{t-1} around each landmark (neighbourhood rule), for Table 3. Without
+        S/D separation every landmark counts as Occupied (static)."""
+        if self._table_2 is None or len(positions) == 0:
+            return np.full(len(positions), OCCUPIED, np.int8)
+        g, m = self.grids, self.config.map
+        r = m.resolution_m
+        rows, cols = g.shape
+        row = np.floor(positions[:, 1] / r).astype(np.int64) - g.origin_row
+        col = np.floor(positions[:, 0] / r).astype(np.int64) - g.origin_col
+        k = self._radius
+        inside = (row >= k) & (row < rows - k) & (col >= k) & (col < cols - k)
+        states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
+        cells = row[inside] * cols + col[inside]
+        states[inside] = classify_neighbourhood(
+            g.layers["static"].reshape(-1), cells, neighbourhood_offsets(k, cols),
+            m.free_threshold, m.occupied_threshold)
+        return states
 
     def observe(self, pose: Pose2D, scan: Scan) -> Observation:
         """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
@@ -128,7 +183,24 @@ class DynamicSlam:
             static=self.grids.snapshot("static"),
             dynamic=self.grids.snapshot("dynamic"),
             trajectory=np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4),
+            landmarks=self.landmarks(),
         )
+
+    def landmarks(self) -> list[Landmark]:
+        """The landmark map, with each landmark's position covariance."""
+        if self._slam is None:
+            return []
+        slam = self._slam
+        out = []
+        for i, (track, (x, y)) in enumerate(zip(slam.tracks, slam.landmark_positions(),
+                                                strict=True)):
+            j = 3 + 2 * i
+            c = slam.ekf.cov[j:j + 2, j:j + 2]
+            out.append(Landmark(track.id, float(x), float(y),
+                                "convex" if track.convex else "concave", track.cls,
+                                track.observations, float(c[0, 0]), float(c[0, 1]),
+                                float(c[1, 1])))
+        return out
 
 
 def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,

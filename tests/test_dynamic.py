@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from dynslam_cli.dynamic import (
     neighbourhood_offsets,
 )
 from dynslam_cli.grid import logit
+from dynslam_cli.localization import EkfConfig
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.types import Pose2D, Scan
 
@@ -137,9 +139,12 @@ def _score(world: str, tmp_path, noise: float, config: Config):
     return final, events, truth
 
 
+ODOMETRY_ONLY = Config(ekf=EkfConfig(localization="odometry"))
+
+
 @pytest.mark.parametrize("world", ["corridors", "arena", "hall", "crowd"])
 def test_dynamic_mapping_with_true_odometry(world, tmp_path):
-    final, events, truth = _score(world, tmp_path, 0.0, Config())
+    final, events, truth = _score(world, tmp_path, 0.0, ODOMETRY_ONLY)
     s = final["static_map"]
     assert s["ghost_rate"] <= 0.002
     assert s["precision"] >= 0.98
@@ -153,7 +158,7 @@ def test_dynamic_mapping_with_true_odometry(world, tmp_path):
 
 def test_ordinary_grid_fails_where_dynamic_mapping_works(tmp_path):
     """Paper Fig. 3(b): without S/D separation moved boxes end up static."""
-    final, events, _ = _score("arena", tmp_path, 0.0, Config(dynamic=DynamicConfig(
+    final, events, _ = _score("arena", tmp_path, 0.0, replace(ODOMETRY_ONLY, dynamic=DynamicConfig(
         enabled=False)))
     assert events["moved_objects_detected"]["rate"] == 0.0
     assert final["static_map"]["ghost_rate"] > 0.01
@@ -161,6 +166,35 @@ def test_ordinary_grid_fails_where_dynamic_mapping_works(tmp_path):
 
 def test_drifting_odometry_breaks_mapping(tmp_path):
     """Paper Fig. 3(a): with drifting odometry alone the static map falls apart."""
-    final, _, _ = _score("hall", tmp_path, 1.0, Config())
+    final, _, _ = _score("hall", tmp_path, 1.0, ODOMETRY_ONLY)
     assert final["static_map"]["precision"] < 0.5
     assert final["trajectory"]["ate_rmse_m"] > 0.5
+
+
+# -- with localization (paper Sec. 4): EKF-SLAM over corners, default drifting odometry --------
+@pytest.mark.parametrize("world", ["corridors", "arena", "hall", "crowd"])
+def test_slam_with_drifting_odometry(world, tmp_path):
+
+    final, events, truth = _score(world, tmp_path, 1.0, Config())
+    t = final["trajectory"]
+    assert t["ate_rmse_m"] <= 0.10
+    assert t["ate_rmse_m"] * 10 <= t["odometry_ate_rmse_m"]
+    assert final["static_map"]["ghost_rate"] <= 0.005
+    moved, vacated = events["moved_objects_detected"], events["vacated_places_cleared"]
+    if truth["events"]:
+        assert moved["rate"] == 1.0 and vacated["rate"] == 1.0
+    assert final["landmarks"]["static_on_movers"] == 0
+
+
+def test_ablations_are_worse(tmp_path):
+    """Paper Fig. 3: without the EKF the pose drifts; without S/D moved boxes turn static."""
+    for name in "abc":
+        (tmp_path / name).mkdir()
+    full, full_events, _ = _score("hall", tmp_path / "a", 1.0, Config())
+    odo, _, _ = _score("hall", tmp_path / "b", 1.0, ODOMETRY_ONLY)
+    flat, flat_events, _ = _score("hall", tmp_path / "c", 1.0, Config(
+        dynamic=DynamicConfig(enabled=False)))
+    assert odo["trajectory"]["ate_rmse_m"] > 5 * full["trajectory"]["ate_rmse_m"]
+    assert full_events["moved_objects_detected"]["rate"] == 1.0
+    assert flat_events["moved_objects_detected"]["rate"] == 0.0
+    assert flat["static_map"]["ghost_rate"] > 5 * max(full["static_map"]["ghost_rate"], 0.001)

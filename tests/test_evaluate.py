@@ -99,7 +99,9 @@ def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
     with open(log, "w") as f:
         write_carmen(f, steps, LaserModel(), "flaser", "arena")
     source, _, reader = open_log(str(log), ReaderOptions())
-    result = run(reader.scans(), Config())
+    from dynslam_cli.localization import EkfConfig
+
+    result = run(reader.scans(), Config(ekf=EkfConfig(localization="odometry")))
     source.close()
     truth = json.loads(json.dumps({
         "walls": truth_obj.walls, "static_corners": truth_obj.corners, "poses": truth_obj.poses,

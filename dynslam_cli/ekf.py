@@ -1,0 +1,193 @@
+"""EKF-SLAM after Dissanayake et al. (2001): robot pose and corner landmarks in one state.
+
+State layout: ``x = [x_r, y_r, θ_r, l1x, l1y, l2x, l2y, ...]`` (metres, radians); ``cov`` its
+covariance. Each step of the maths is one function: the motion model and its Jacobians, the
+range-bearing measurement model and its Jacobian, Mahalanobis gating, augmentation with a new
+landmark, and the update. Updates use the symmetric form P − K S Kᵀ with S solved by Cholesky
+(no explicit inverse) and P kept symmetric; cost is O(n²) per observation because H touches
+only the robot and one landmark.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from dynslam_cli.geometry import wrap_angle
+
+ROBOT = 3  # state entries of the robot pose
+LM = 2  # state entries per landmark
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Motion noise grows with the motion; measurement noise with the range."""
+
+    trans_per_m: float = 0.05
+    """Std of translation error per metre driven (fraction)."""
+    rot_per_rad: float = 0.05
+    """Std of rotation error per radian turned (fraction)."""
+    rot_per_m_deg: float = 1.0
+    """Std of rotation error per metre driven (degrees)."""
+    trans_floor_m: float = 0.002
+    rot_floor_deg: float = 0.1
+    range_m: float = 0.03
+    range_per_m: float = 0.01
+    bearing_deg: float = 1.0
+
+
+# -- motion model ---------------------------------------------------------------------------
+def motion(pose: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """pose ⊕ u: apply the odometry increment u = (dx, dy, dθ), given in the robot frame."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.array([pose[0] + c * u[0] - s * u[1], pose[1] + s * u[0] + c * u[1],
+                     wrap_angle(pose[2] + u[2])])
+
+
+def motion_jacobians(pose: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """∂motion/∂pose and ∂motion/∂u."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    f_x = np.array([[1.0, 0.0, -s * u[0] - c * u[1]],
+                    [0.0, 1.0, c * u[0] - s * u[1]],
+                    [0.0, 0.0, 1.0]])
+    f_u = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return f_x, f_u
+
+
+def motion_noise(u: np.ndarray, noise: NoiseModel) -> np.ndarray:
+    """Covariance of the increment u (robot frame), growing with distance and turn."""
+    dist, turn = math.hypot(u[0], u[1]), abs(u[2])
+    st = noise.trans_per_m * dist + noise.trans_floor_m
+    sr = (noise.rot_per_rad * turn + math.radians(noise.rot_per_m_deg) * dist
+          + math.radians(noise.rot_floor_deg))
+    return np.diag([st * st, st * st, sr * sr])
+
+
+# -- measurement model ----------------------------------------------------------------------
+def observe(pose: np.ndarray, landmark: np.ndarray) -> np.ndarray:
+    """Expected (range, bearing) of a landmark from the robot."""
+    dx, dy = landmark[0] - pose[0], landmark[1] - pose[1]
+    return np.array([math.hypot(dx, dy), wrap_angle(math.atan2(dy, dx) - pose[2])])
+
+
+def observe_jacobians(pose: np.ndarray, landmark: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """∂observe/∂pose (2×3) and ∂observe/∂landmark (2×2)."""
+    dx, dy = landmark[0] - pose[0], landmark[1] - pose[1]
+    q = max(dx * dx + dy * dy, 1e-12)
+    r = math.sqrt(q)
+    h_l = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
+    h_r = np.hstack((-h_l, np.array([[0.0], [-1.0]])))
+    return h_r, h_l
+
+
+def inverse_observe(pose: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Landmark position from the robot pose and a (range, bearing) observation."""
+    a = pose[2] + z[1]
+    return np.array([pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a)])
+
+
+def inverse_observe_jacobians(pose: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """∂inverse_observe/∂pose (2×3) and ∂/∂z (2×2)."""
+    a = pose[2] + z[1]
+    c, s = math.cos(a), math.sin(a)
+    g_r = np.array([[1.0, 0.0, -z[0] * s], [0.0, 1.0, z[0] * c]])
+    g_z = np.array([[c, -z[0] * s], [s, z[0] * c]])
+    return g_r, g_z
+
+
+def measurement_noise(z: np.ndarray, noise: NoiseModel) -> np.ndarray:
+    sr = noise.range_m + noise.range_per_m * z[0]
+    sb = math.radians(noise.bearing_deg)
+    return np.diag([sr * sr, sb * sb])
+
+
+def innovation(z: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    return np.array([z[0] - expected[0], wrap_angle(z[1] - expected[1])])
+
+
+# -- the filter -----------------------------------------------------------------------------
+class Ekf:
+    """The joint Gaussian over robot pose and landmarks."""
+
+    def __init__(self, pose: np.ndarray, noise: NoiseModel) -> None:
+        self.x = np.array(pose, dtype=np.float64)
+        self.cov = np.zeros((ROBOT, ROBOT))
+        self.noise = noise
+
+    @property
+    def n_landmarks(self) -> int:
+        return (len(self.x) - ROBOT) // LM
+
+    def landmark(self, i: int) -> np.ndarray:
+        j = ROBOT + LM * i
+        return self.x[j:j + LM]
+
+    def predict(self, u: np.ndarray, noise_scale: float = 1.0) -> None:
+        """Motion update with the odometry increment u (robot frame); ``noise_scale``
+        multiplies the standard deviations of the motion noise."""
+        f_x, f_u = motion_jacobians(self.x[:3], u)
+        self.x[:3] = motion(self.x[:3], u)
+        cov = self.cov
+        q = motion_noise(u, self.noise) * noise_scale ** 2
+        cov[:3, :3] = f_x @ cov[:3, :3] @ f_x.T + f_u @ q @ f_u.T
+        cov[:3, 3:] = f_x @ cov[:3, 3:]
+        cov[3:, :3] = cov[:3, 3:].T
+
+    def _blocks(self, i: int) -> tuple[np.ndarray, np.ndarray, list[int]]:
+        pose, lm = self.x[:3], self.landmark(i)
+        h_r, h_l = observe_jacobians(pose, lm)
+        j = ROBOT + LM * i
+        return h_r, h_l, [0, 1, 2, j, j + 1]
+
+    def mahalanobis(self, i: int, z: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """(d², innovation, innovation covariance) of observation z against landmark i."""
+        h_r, h_l, idx = self._blocks(i)
+        h = np.hstack((h_r, h_l))
+        sub = self.cov[np.ix_(idx, idx)]
+        s = h @ sub @ h.T + measurement_noise(z, self.noise)
+        nu = innovation(z, observe(self.x[:3], self.landmark(i)))
+        return float(nu @ np.linalg.solve(s, nu)), nu, s
+
+    def update(self, i: int, z: np.ndarray) -> None:
+        """Measurement update with observation z of landmark i."""
+        h_r, h_l, idx = self._blocks(i)
+        h = np.hstack((h_r, h_l))
+        cov = self.cov
+        w = cov[:, idx] @ h.T  # n×2 = P Hᵀ
+        s = h @ w[idx] + measurement_noise(z, self.noise)
+        s = 0.5 * (s + s.T)
+        nu = innovation(z, observe(self.x[:3], self.landmark(i)))
+        factor = cho_factor(s)
+        k = cho_solve(factor, w.T).T  # n×2 = P Hᵀ S⁻¹
+        self.x += k @ nu
+        self.x[2] = wrap_angle(self.x[2])
+        cov -= k @ w.T
+        self.cov = 0.5 * (cov + cov.T)
+
+    def add_landmark(self, z: np.ndarray) -> int:
+        """Augment the state with a landmark first seen as observation z; returns its index."""
+        pose = self.x[:3]
+        g_r, g_z = inverse_observe_jacobians(pose, z)
+        n = len(self.x)
+        cov = np.zeros((n + LM, n + LM))
+        cov[:n, :n] = self.cov
+        cross = g_r @ self.cov[:3, :]  # 2×n
+        cov[n:, :n] = cross
+        cov[:n, n:] = cross.T
+        r = measurement_noise(z, self.noise)
+        cov[n:, n:] = g_r @ self.cov[:3, :3] @ g_r.T + g_z @ r @ g_z.T
+        self.cov = cov
+        self.x = np.concatenate((self.x, inverse_observe(pose, z)))
+        return self.n_landmarks - 1
+
+    def remove_landmarks(self, indices: list[int]) -> None:
+        """Marginalize landmarks out (drop their rows and columns)."""
+        if not indices:
+            return
+        drop = {ROBOT + LM * i + k for i in indices for k in range(LM)}
+        keep = np.array([j for j in range(len(self.x)) if j not in drop])
+        self.x = self.x[keep]
+        self.cov = self.cov[np.ix_(keep, keep)]

@@ -1,0 +1,201 @@
+"""Localization (paper Sec. 4): EKF-SLAM over corner landmarks, nearest-neighbour data
+association, and Table 3 — a landmark corrects the pose only if its place in S is Occupied.
+
+Landmarks pass a tentative stage first (seen ``confirm_observations`` times close together)
+so that clutter does not fill the state. Per-scan cost is bounded by the size of the state,
+which is bounded by ``max_landmarks``: landmarks seen only a few times and not for a long
+while are dropped first, then the least recently seen.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dynslam_cli.corners import Corner, CornerConfig, detect_corners
+from dynslam_cli.dynamic import TABLE_3
+from dynslam_cli.ekf import Ekf, NoiseModel
+from dynslam_cli.geometry import compose
+from dynslam_cli.types import Pose2D, Scan
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Localization parameters."""
+
+    localization: str = "ekf"
+    """``ekf`` (corner EKF-SLAM) or ``odometry`` (no correction, paper Fig. 3a)."""
+    gate_chi2: float = 9.21
+    """Mahalanobis gate for data association (χ², 2 dof; 9.21 = 99%)."""
+    search_radius_m: float = 1.5
+    """Only landmarks this close to an observation are considered for association."""
+    confirm_observations: int = 3
+    """A new corner becomes a landmark after this many sightings ..."""
+    candidate_radius_m: float = 0.25
+    """... within this distance of each other ..."""
+    candidate_expiry_scans: int = 15
+    """... each within this many scans of the previous one."""
+    matched_noise_scale: float = 0.3
+    """Motion noise of a scan-matched increment, relative to wheel odometry's."""
+    max_landmarks: int = 600
+    prune_after_scans: int = 600
+    """Landmarks seen fewer than 5 times and not for this many scans are dropped."""
+    noise: NoiseModel = field(default_factory=NoiseModel)
+
+
+@dataclass
+class LandmarkTrack:
+    """Bookkeeping beside the filter state for one landmark."""
+
+    id: int
+    convex: bool
+    cls: str = "dynamic"
+    observations: int = 1
+    last_seen: int = 0
+
+
+@dataclass
+class Candidate:
+    x: float
+    y: float
+    convex: bool
+    count: int
+    last_seen: int
+
+
+def to_range_bearing(corner: Corner, laser: Pose2D) -> np.ndarray:
+    """A corner from the laser frame to (range, bearing) from the robot."""
+    p = compose(laser, Pose2D(corner.x, corner.y, 0.0))
+    return np.array([math.hypot(p.x, p.y), math.atan2(p.y, p.x)])
+
+
+class CornerSlam:
+    """The EKF, its landmark bookkeeping and the tentative landmarks."""
+
+    def __init__(self, start: Pose2D, config: EkfConfig, corners: CornerConfig) -> None:
+        self.config = config
+        self.corner_config = corners
+        self.ekf = Ekf(np.array([start.x, start.y, start.theta]), config.noise)
+        self.tracks: list[LandmarkTrack] = []
+        self.candidates: list[Candidate] = []
+        self.scan_index = 0
+        self._next_id = 0
+
+    @property
+    def pose(self) -> Pose2D:
+        x = self.ekf.x
+        return Pose2D(float(x[0]), float(x[1]), float(x[2]))
+
+    def predict(self, increment: Pose2D, matched: bool) -> None:
+        """EKF prediction from the motion increment (robot frame); a scan-matched increment
+        is trusted more than wheel odometry (``matched_noise_scale``)."""
+        self.ekf.predict(np.array([increment.x, increment.y, increment.theta]),
+                         self.config.matched_noise_scale if matched else 1.0)
+
+    def detect(self, scan: Scan) -> list[tuple[np.ndarray, bool]]:
+        """Corners of the scan as ((range, bearing) from the robot, convex)."""
+        corners = detect_corners(scan.ranges, scan.angles, scan.max_range, self.corner_config)
+        return [(to_range_bearing(c, scan.laser), c.convex) for c in corners]
+
+    def associate(self, observations: list[tuple[np.ndarray, bool]]
+                  ) -> tuple[list[tuple[int, np.ndarray]], list[int]]:
+        """Nearest neighbour by Mahalanobis distance within the gate, same convex/concave
+        flag, each landmark used once. Returns (landmark index, z) pairs and the indices of
+        observations that matched nothing but lie near a landmark (ambiguous: not new)."""
+        ekf, cfg = self.ekf, self.config
+        pose = ekf.x[:3]
+        lms = ekf.x[3:].reshape(-1, 2)
+        scored = []
+        near_something = []
+        for k, (z, convex) in enumerate(observations):
+            a = pose[2] + z[1]
+            p = (pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a))
+            if len(lms):
+                close = np.flatnonzero(np.hypot(lms[:, 0] - p[0], lms[:, 1] - p[1])
+                                       < cfg.search_radius_m)
+            else:
+                close = np.zeros(0, dtype=np.int64)
+            if len(close):
+                near_something.append(k)
+            for i in close:
+                if self.tracks[i].convex != convex:
+                    continue
+                d2, _, _ = ekf.mahalanobis(int(i), z)
+                if d2 < cfg.gate_chi2:
+                    scored.append((d2, k, int(i)))
+        scored.sort()
+        used_obs: set[int] = set()
+        used_lm: set[int] = set()
+        pairs = []
+        for _, k, i in scored:
+            if k in used_obs or i in used_lm:
+                continue
+            used_obs.add(k)
+            used_lm.add(i)
+            pairs.append((i, observations[k][0]))
+        unmatched_near = [k for k in near_something if k not in used_obs]
+        self._matched = used_obs
+        return pairs, unmatched_near
+
+    def classify(self, states: np.ndarray) -> None:
+        """Table 3 for every landmark, from the S^{t-1} state at its place."""
+        for track, state in zip(self.tracks, states, strict=True):
+            track.cls = TABLE_3[int(state)]
+
+    def correct(self, pairs: list[tuple[int, np.ndarray]]) -> int:
+        """Update with every associated static landmark; returns how many were used."""
+        used = 0
+        for i, z in pairs:
+            track = self.tracks[i]
+            track.observations += 1
+            track.last_seen = self.scan_index
+            if track.cls == "static":
+                self.ekf.update(i, z)
+                used += 1
+        return used
+
+    def add_new(self, observations: list[tuple[np.ndarray, bool]], skip: set[int]) -> None:
+        """Tentative stage: unmatched corners become landmarks once confirmed."""
+        cfg, pose = self.config, self.ekf.x[:3]
+        self.candidates = [c for c in self.candidates
+                           if self.scan_index - c.last_seen <= cfg.candidate_expiry_scans]
+        for k, (z, convex) in enumerate(observations):
+            if k in self._matched or k in skip:
+                continue
+            a = pose[2] + z[1]
+            x, y = pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a)
+            best = min((c for c in self.candidates if c.convex == convex),
+                       key=lambda c: math.hypot(c.x - x, c.y - y), default=None)
+            if best is None or math.hypot(best.x - x, best.y - y) > cfg.candidate_radius_m:
+                self.candidates.append(Candidate(x, y, convex, 1, self.scan_index))
+                continue
+            best.count += 1
+            best.x += (x - best.x) / best.count
+            best.y += (y - best.y) / best.count
+            best.last_seen = self.scan_index
+            if best.count >= cfg.confirm_observations:
+                self.candidates.remove(best)
+                self.ekf.add_landmark(z)
+                self.tracks.append(LandmarkTrack(self._next_id, convex,
+                                                 observations=best.count,
+                                                 last_seen=self.scan_index))
+                self._next_id += 1
+
+    def prune(self) -> None:
+        """Keep the state bounded: drop stale clutter, then the least recently seen."""
+        cfg = self.config
+        drop = [i for i, t in enumerate(self.tracks)
+                if t.observations < 5 and self.scan_index - t.last_seen > cfg.prune_after_scans]
+        excess = len(self.tracks) - len(drop) - cfg.max_landmarks
+        if excess > 0:
+            rest = sorted((t.last_seen, i) for i, t in enumerate(self.tracks) if i not in drop)
+            drop += [i for _, i in rest[:excess]]
+        if drop:
+            self.ekf.remove_landmarks(sorted(drop))
+            gone = set(drop)
+            self.tracks = [t for i, t in enumerate(self.tracks) if i not in gone]
+
+    def landmark_positions(self) -> np.ndarray:
+        return self.ekf.x[3:].reshape(-1, 2)

@@ -1,0 +1,152 @@
+"""EKF-SLAM pieces (paper Sec. 4): models and Jacobians, association, corners, Table 3."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dynslam_cli.corners import CornerConfig, detect_corners
+from dynslam_cli.dynamic import FREE, OCCUPIED, TABLE_3, UNKNOWN
+from dynslam_cli.ekf import (
+    Ekf,
+    NoiseModel,
+    inverse_observe,
+    inverse_observe_jacobians,
+    motion,
+    motion_jacobians,
+    observe,
+    observe_jacobians,
+)
+from dynslam_cli.localization import CornerSlam, EkfConfig
+from dynslam_cli.simulate import Box, ray_cast
+from dynslam_cli.types import Pose2D
+
+
+def numeric_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    cols = []
+    for k in range(len(x)):
+        d = np.zeros(len(x))
+        d[k] = eps
+        diff = f(x + d) - f(x - d)
+        if len(diff) > 1 and diff.shape[0] in (2, 3):
+            diff[-1 if len(diff) == 3 else 1] = math.remainder(
+                diff[-1 if len(diff) == 3 else 1], 2 * math.pi)
+        cols.append(diff / (2 * eps))
+    return np.column_stack(cols)
+
+
+POSE = np.array([1.0, -2.0, 0.7])
+U = np.array([0.3, 0.05, -0.2])
+LM = np.array([4.0, 1.5])
+
+
+def test_motion_jacobians_match_numerical():
+    f_x, f_u = motion_jacobians(POSE, U)
+    np.testing.assert_allclose(f_x, numeric_jacobian(lambda p: motion(p, U), POSE), atol=1e-6)
+    np.testing.assert_allclose(f_u, numeric_jacobian(lambda u: motion(POSE, u), U), atol=1e-6)
+
+
+def test_measurement_jacobians_match_numerical():
+    h_r, h_l = observe_jacobians(POSE, LM)
+    np.testing.assert_allclose(h_r, numeric_jacobian(lambda p: observe(p, LM), POSE), atol=1e-6)
+    np.testing.assert_allclose(h_l, numeric_jacobian(lambda m: observe(POSE, m), LM), atol=1e-6)
+    z = observe(POSE, LM)
+    np.testing.assert_allclose(inverse_observe(POSE, z), LM, atol=1e-12)
+    g_r, g_z = inverse_observe_jacobians(POSE, z)
+    np.testing.assert_allclose(g_r, numeric_jacobian(lambda p: inverse_observe(p, z), POSE),
+                               atol=1e-6)
+    np.testing.assert_allclose(g_z, numeric_jacobian(lambda q: inverse_observe(POSE, q), z),
+                               atol=1e-6)
+
+
+def test_update_pulls_pose_and_keeps_covariance_symmetric_positive():
+    ekf = Ekf(np.zeros(3), NoiseModel())
+    i = ekf.add_landmark(np.array([3.0, 0.0]))
+    for _ in range(20):
+        ekf.predict(np.array([0.1, 0.0, 0.0]), 5.0)  # poor odometry
+    # odometry says x = 2.0; the landmark at 3 m is seen at 0.8 m: the robot is at 2.2
+    for _ in range(5):
+        ekf.update(i, np.array([0.8, 0.0]))
+    assert ekf.x[0] == pytest.approx(2.2, abs=0.05)
+    np.testing.assert_allclose(ekf.cov, ekf.cov.T)
+    assert np.linalg.eigvalsh(ekf.cov).min() > -1e-12
+
+
+def _slam_with_landmark(convex: bool) -> CornerSlam:
+    slam = CornerSlam(Pose2D(), EkfConfig(), CornerConfig())
+    slam.ekf.add_landmark(np.array([2.0, 0.0]))
+    from dynslam_cli.localization import LandmarkTrack
+
+    slam.tracks.append(LandmarkTrack(0, convex))
+    return slam
+
+
+def test_association_nearest_within_gate_and_same_kind():
+    slam = _slam_with_landmark(convex=True)
+    obs = [(np.array([2.02, 0.01]), True)]
+    pairs, _ = slam.associate(obs)
+    assert [i for i, _ in pairs] == [0]
+    pairs, ambiguous = slam.associate([(np.array([2.02, 0.01]), False)])  # concave: no
+    assert pairs == [] and ambiguous == [0]
+    pairs, ambiguous = slam.associate([(np.array([2.0, 0.6]), True)])  # far outside gate
+    assert pairs == []
+
+
+def test_association_uses_each_landmark_once():
+    slam = _slam_with_landmark(convex=False)
+    obs = [(np.array([2.05, 0.0]), False), (np.array([2.0, 0.0]), False)]
+    pairs, _ = slam.associate(obs)
+    assert len(pairs) == 1 and pairs[0][1][0] == pytest.approx(2.0)
+
+
+@pytest.mark.parametrize(("state", "cls"), [(FREE, "dynamic"), (UNKNOWN, "dynamic"),
+                                            (OCCUPIED, "static")])
+def test_table_3(state, cls):
+    assert TABLE_3[state] == cls
+    slam = _slam_with_landmark(convex=True)
+    slam.classify(np.array([state]))
+    assert slam.tracks[0].cls == cls
+    before = slam.ekf.x.copy()
+    slam.ekf.predict(np.array([0.0, 0.0, 0.0]), 10.0)
+    slam.correct([(0, np.array([1.9, 0.0]))])
+    moved = not np.allclose(slam.ekf.x[:3], before[:3])
+    assert moved == (cls == "static")  # only static landmarks correct the pose
+
+
+# -- corner detection -----------------------------------------------------------------------
+ANGLES = np.radians(np.arange(-90, 90.25, 0.5))
+
+
+def cast(segments: np.ndarray) -> np.ndarray:
+    r, _ = ray_cast(Pose2D(), ANGLES, segments, np.zeros(len(segments), int),
+                    np.zeros((0, 3)), np.zeros(0, int), 8.0)
+    return r
+
+
+def test_concave_room_corner_found():
+    (c,) = detect_corners(cast(np.array([[3, -5, 3, 2], [3, 2, -5, 2]], float)), ANGLES, 8.0,
+                          CornerConfig())
+    assert (c.x, c.y, c.convex) == (pytest.approx(3.0, abs=0.02), pytest.approx(2.0, abs=0.02),
+                                    False)
+
+
+def test_convex_box_corner_found():
+    (c,) = detect_corners(cast(Box("b", 0.5, 0.5, [(3.0, 1.5)]).segments()), ANGLES, 8.0,
+                          CornerConfig())
+    assert (c.x, c.y, c.convex) == (pytest.approx(2.5, abs=0.02), pytest.approx(1.0, abs=0.02),
+                                    True)
+
+
+def test_no_corner_on_a_smooth_wall_or_an_occlusion_edge():
+    wall = np.array([[4, -6, 4, 6]], float)
+    assert detect_corners(cast(wall), ANGLES, 8.0, CornerConfig()) == []
+    # a short wall in front of a long one: two edges where one hides the other
+    occluder = np.array([[4, -6, 4, 6], [2, 0.5, 2, 3]], float)
+    assert detect_corners(cast(occluder), ANGLES, 8.0, CornerConfig()) == []
+
+
+def test_no_corner_beyond_the_usable_range():
+    far = np.array([[7.5, -9, 7.5, 6], [7.5, 6, -9, 6]], float)
+    assert detect_corners(cast(far), ANGLES, 8.0, CornerConfig()) == []
