@@ -73,9 +73,11 @@ def main() -> None:
               help="Output folder [default: ./<log stem>_dynslam].")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 @click.option("--format", "format_name", metavar="NAME",
-              help="Log format instead of detecting it: carmen.")
+              help="Log format instead of detecting it: carmen, player, ros, mcap.")
 @click.option("--laser", default="front", show_default=True, metavar="WHICH",
-              help="Which laser: Carmen front|rear|3|4.")
+              help="Which laser: Carmen front|rear|3|4; Player a device index.")
+@click.option("--topic", metavar="TOPIC", help="ROS: the sensor_msgs/LaserScan topic.")
+@click.option("--odom-topic", metavar="TOPIC", help="ROS: the nav_msgs/Odometry topic.")
 @click.option("--flaser-fov", type=float, metavar="DEG",
               help="Field of view of old FLASER records (degrees) instead of CARMEN's rule.")
 @click.option("--resolution", type=float, metavar="M",
@@ -92,12 +94,14 @@ def main() -> None:
                    "and snapshots/evolution.gif.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
-            flaser_fov: float | None, resolution: float | None, config_file: Path | None,
+            topic: str | None, odom_topic: str | None, flaser_fov: float | None,
+            resolution: float | None, config_file: Path | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
             quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
-    LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped) or - for standard input.
+    LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped), a Player writelog, a
+    ROS1 .bag, a ROS2 bag folder, .db3 or .mcap, or - for standard input (text logs).
 
     \b
     Writes into the output folder (atomically: all or nothing):
@@ -115,6 +119,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       dynslam process intel.log.gz -o out/intel --resolution 0.1
       zcat run3.log.gz | dynslam process - -o run3 --quiet
       dynslam process robot.log --laser rear --config tuned.toml --force
+      dynslam process lasers.bag --topic /left_scan
     """
     target = output if output is not None else default_output(log)
     overrides = {"map": {"resolution_m": resolution}} if resolution is not None else {}
@@ -127,11 +132,15 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
     def work() -> None:
         from dynslam_cli.config import load_config
+        from formats import ReaderOptions
         from formats.outdir import check_target
 
         config = load_config(config_file, overrides)
         check_target(target, force)
-        summary = _process(log, target, force, format_name, laser, config, quiet, snapshots)
+        options = ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
+                                fov_deg=config.laser.fov_deg)
+        summary = _process(log, target, force, format_name, options, config, quiet,
+                           snapshots)
         if not quiet:
             s = summary
             click.echo(f"dynslam: {s['scans_processed']} scans, {s['data_duration_s']:.1f} s of "
@@ -141,19 +150,18 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
     _guarded(work)
 
 
-def _process(log: str, target: Path, force: bool, format_name: str | None, laser: str,
+def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
              config: Any, quiet: bool, snapshot_every: float | None) -> dict[str, Any]:
     import resource
 
     from tqdm import tqdm
 
     from dynslam_cli.pipeline import run
-    from formats import ReaderOptions, open_log
+    from formats import open_log
     from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from formats.picture import SnapshotWriter
 
     start = time.perf_counter()
-    options = ReaderOptions(laser=laser, fov_deg=config.laser.fov_deg)
     source, entry, reader = open_log(log, options, format_name)
     with atomic_output_dir(target, force) as tmp:
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
@@ -179,7 +187,8 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, laser
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
             "input": {"path": source.name, "format": entry.name,
-                      "options": {"laser": laser, "format": format_name}},
+                      "options": {"laser": options.laser, "topic": options.topic,
+                                  "odom_topic": options.odom_topic, "format": format_name}},
             "reader": reader.stats.to_dict(),
             "scans_processed": len(stamps),
             "first_stamp": float(stamps[0]) if len(stamps) else None,

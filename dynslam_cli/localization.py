@@ -20,6 +20,8 @@ from dynslam_cli.ekf import Ekf, NoiseModel
 from dynslam_cli.geometry import compose
 from dynslam_cli.types import Pose2D, Scan
 
+NO_ODOMETRY_NOISE_SCALE = 50.0  # × the motion-noise floor: ~0.1 m and 5° per scan
+
 
 @dataclass(frozen=True)
 class EkfConfig:
@@ -88,11 +90,13 @@ class CornerSlam:
         x = self.ekf.x
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
-    def predict(self, increment: Pose2D, matched: bool) -> None:
+    def predict(self, increment: Pose2D, matched: bool, has_odometry: bool = True) -> None:
         """EKF prediction from the motion increment (robot frame); a scan-matched increment
-        is trusted more than wheel odometry (``matched_noise_scale``)."""
-        self.ekf.predict(np.array([increment.x, increment.y, increment.theta]),
-                         self.config.matched_noise_scale if matched else 1.0)
+        is trusted more than wheel odometry (``matched_noise_scale``); without odometry an
+        unmatched scan gets the wide stationary prior."""
+        scale = (self.config.matched_noise_scale if matched
+                 else 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE)
+        self.ekf.predict(np.array([increment.x, increment.y, increment.theta]), scale)
 
     def detect(self, scan: Scan) -> list[tuple[np.ndarray, bool]]:
         """Corners of the scan as ((range, bearing) from the robot, convex)."""

@@ -109,7 +109,7 @@ class DynamicSlam:
             self._slam = CornerSlam(scan.odom, self.config.ekf, self.config.corners)
             return scan.odom
         slam = self._slam
-        slam.predict(increment, matched)
+        slam.predict(increment, matched, scan.has_odometry)
         observations = slam.detect(scan)
         pairs, ambiguous = slam.associate(observations)
         slam.classify(self.classify_landmarks(slam.landmark_positions()))

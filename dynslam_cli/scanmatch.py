@@ -23,6 +23,9 @@ from dynslam_cli.geometry import compose, relative
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
+# Motion prior for logs without odometry: stationary, with this standard deviation per scan
+# (x m, y m, θ rad): a still or slowly moving sensor is matched freely within it.
+NO_ODOMETRY_SIGMA = np.array([0.3, 0.3, math.radians(15.0)])
 
 
 @dataclass(frozen=True)
@@ -140,8 +143,11 @@ class ScanMatcher:
             return wheel, False
         ref, normals, tree = self._key
         guess = compose(self._pose_in_key, wheel)
-        sigma = np.sqrt(np.diag(motion_noise(np.array([wheel.x, wheel.y, wheel.theta]),
-                                             self.noise)))
+        if scan.has_odometry:
+            sigma = np.sqrt(np.diag(motion_noise(np.array([wheel.x, wheel.y, wheel.theta]),
+                                                 self.noise)))
+        else:
+            sigma = NO_ODOMETRY_SIGMA
         pose, share, rms = icp(ref, normals, tree, pts, guess, cfg, sigma)
         off = np.array([pose.x - guess.x, pose.y - guess.y,
                         math.remainder(pose.theta - guess.theta, 2 * math.pi)]) / sigma

@@ -33,3 +33,6 @@ class Scan:
     odom: Pose2D
     laser: Pose2D = field(default_factory=Pose2D)
     source_line: int = 0
+    has_odometry: bool = True
+    """False for logs without odometry (laser-only bags): ``odom`` is then the origin and
+    the motion prior is "stationary, with wide noise" (see dynslam_cli.scanmatch)."""

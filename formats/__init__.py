@@ -39,9 +39,37 @@ def _carmen_sniff(head: bytes) -> bool:
     return sniff(head)
 
 
+def _player(source: Source, options: ReaderOptions) -> LogReader:
+    from formats.player import PlayerReader
+
+    return PlayerReader(source, options)
+
+
+def _player_sniff(head: bytes) -> bool:
+    from formats.player import sniff
+
+    return sniff(head)
+
+
+def _ros(source: Source, options: ReaderOptions) -> LogReader:
+    from formats.ros import RosbagsReader
+
+    return RosbagsReader(source, options)
+
+
+def _ros_sniff(head: bytes) -> bool:
+    from formats.ros import sniff
+
+    return sniff(head)
+
+
 READERS: tuple[ReaderEntry, ...] = (
     ReaderEntry("carmen", "Carmen / Radish / Freiburg log (FLASER, ROBOTLASER, RAWLASER...)",
                 (".log", ".clf", ".gfs.log", ".gfs"), _carmen_sniff, _carmen),
+    ReaderEntry("player", "Player writelog text log (file versions 0.0, 0.2, 0.3)",
+                (".playerlog",), _player_sniff, _player),
+    ReaderEntry("ros", "ROS1 .bag, ROS2 bag folder / .db3 / .mcap (rosbags)",
+                (".bag", ".db3", ".mcap"), _ros_sniff, _ros),
 )
 
 

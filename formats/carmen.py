@@ -43,16 +43,15 @@ Bad input, decided per case:
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Iterator
 from typing import ClassVar
 
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.geometry import compose, interpolate, relative
+from dynslam_cli.geometry import compose, relative
 from dynslam_cli.types import Pose2D, Scan
-from formats.base import ReaderOptions, ReadStats, Source, text_lines
+from formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
 
 RECORD_NAMES = ("PARAM", "SYNC", "ODOM", "TRUEPOS", "FLASER", "RLASER", "LASER3", "LASER4",
                 "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4", "ROBOTLASER1",
@@ -108,11 +107,9 @@ class CarmenReader:
         self._kind: str | None = None
         self._params: dict[str, str] = {}
         self._angles: dict[tuple[int, float, float], np.ndarray] = {}
-        self._odom: deque[tuple[float, Pose2D]] = deque(maxlen=2)
-        self._waiting: deque[tuple[float, np.ndarray, np.ndarray, float, int]] = deque()
+        self._odometry_buffer = OdometryBuffer(self.stats)
         self._last_stamp = -math.inf
         self._line = 0
-        self._odom_backwards = [0, 0]  # count, first line
 
     # -- the stream -----------------------------------------------------------------------
     def scans(self) -> Iterator[Scan]:
@@ -137,10 +134,11 @@ class CarmenReader:
                 self.stats.skip("damaged last line (log cut off while written)", lineno)
         if not any_line:
             raise InputError(name, "empty log: no records at all")
-        yield from self._flush_waiting(final=True)
-        count, first = self._odom_backwards
-        if count and self._kind not in POSED_KINDS:
-            self.stats.warn("ODOM time stamp goes backwards (record dropped)", first, count)
+        buffer = self._odometry_buffer
+        yield from self._emit_ready(buffer.finish())
+        if buffer.backwards and self._kind not in POSED_KINDS:
+            self.stats.warn("ODOM time stamp goes backwards (record dropped)",
+                            buffer.first_backwards_line, buffer.backwards)
         if self.stats.scans == 0:
             seen = ", ".join(f"{k}×{v}" for k, v in sorted(self.stats.records.items()))
             raise InputError(name, f"no {'/'.join(self._kinds)} records for laser "
@@ -328,47 +326,26 @@ class CarmenReader:
             return
         if self._kind in POSED_KINDS:
             return  # the scans carry their own odometry
-        if self._odom and stamp < self._odom[-1][0]:
-            # Reported at the end, and only if the chosen laser needs ODOM.
-            self._odom_backwards[0] += 1
-            self._odom_backwards[1] = self._odom_backwards[1] or self._line
-            return
-        self._odom.append((stamp, Pose2D(*map(float, pose))))
-        yield from self._flush_waiting(final=False)
+        # Backwards stamps are reported at the end, and only if the chosen laser needs ODOM.
+        yield from self._emit_ready(self._odometry_buffer.add_odometry(
+            stamp, Pose2D(*map(float, pose)), self._line))
 
     # -- odometry for scans without a pose ------------------------------------------------
     def _wait_for_odometry(self, stamp: float, ranges: np.ndarray, angles: np.ndarray,
                            max_range: float) -> Iterator[Scan]:
-        self._waiting.append((stamp, ranges, angles, max_range, self._line))
-        yield from self._flush_waiting(final=False)
+        ready = self._odometry_buffer.add_scan(stamp, (stamp, ranges, angles, max_range),
+                                               self._line)
+        yield from self._emit_ready(ready)
 
-    def _flush_waiting(self, final: bool) -> Iterator[Scan]:
+    def _emit_ready(self, ready: Iterator[tuple[object, Pose2D | None, int]]
+                    ) -> Iterator[Scan]:
         offset = self._mount_offset()
-        while self._waiting:
-            stamp, ranges, angles, max_range, line = self._waiting[0]
-            if not self._odom:
-                if not final:
-                    return
+        for payload, pose, line in ready:
+            stamp, ranges, angles, max_range = payload  # type: ignore[misc]
+            if pose is None:
                 self.stats.warn("no ODOM records: scans placed at the origin", line)
                 pose = Pose2D()
-            elif stamp > self._odom[-1][0] and not final:
-                return
-            else:
-                pose = self._odometry_at(stamp, line)
-            self._waiting.popleft()
             yield from self._emit(stamp, ranges, angles, max_range, pose, offset, line)
-
-    def _odometry_at(self, stamp: float, line: int) -> Pose2D:
-        (t0, p0), (t1, p1) = self._odom[0], self._odom[-1]
-        if stamp >= t1:
-            if stamp > t1:
-                self.stats.warn("scan after the last ODOM: odometry held", line)
-            return p1
-        if stamp <= t0 or t1 == t0:
-            if stamp < t0:
-                self.stats.warn("scan older than the ODOM before it: odometry held", line)
-            return p0
-        return interpolate(p0, p1, (stamp - t0) / (t1 - t0))
 
     def _mount_offset(self) -> Pose2D:
         x = self._param_float("robot{laser}laseroffset") or 0.0

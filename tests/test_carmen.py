@@ -89,7 +89,7 @@ def test_rawlaser_odometry_interpolated_from_odom(tmp_path):
     _, scans, stats = read(write(tmp_path, text))
     assert [(s.odom.x, s.odom.y, s.odom.theta) for s in scans] == [
         pytest.approx((1.0, 2.0, 0.5)), pytest.approx((2.0, 4.0, 1.0))]
-    assert stats.warnings["scan after the last ODOM: odometry held"] == 1
+    assert stats.warnings["scan after the last odometry record: odometry held"] == 1
 
 
 def test_laser3_without_pose_uses_odom(tmp_path):

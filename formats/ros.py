@@ -1,0 +1,198 @@
+"""ROS logs: ROS1 ``.bag``, ROS2 bag folders (sqlite3 or mcap storage), bare ``.db3`` and
+``.mcap`` files through rosbags' ``AnyReader``; MCAP files not written by rosbag2 (e.g. ROS1
+messages in MCAP) through the ``mcap`` package with rosbags' type system.
+
+What is read:
+
+* scans: ``sensor_msgs/LaserScan`` on one topic (``--topic``; a bag with several stops with
+  a message listing them). Time = ``header.stamp``. Ranges follow REP 117: +inf is "no
+  return" (clears free space), NaN, −inf and finite values outside [range_min, range_max]
+  are invalid (dropped, counted).
+* odometry: ``nav_msgs/Odometry`` (``--odom-topic`` if several), else TF ``odom → base``
+  (``base_link``/``base_footprint``), interpolated at each scan's time. With neither, the
+  log is said to have no odometry once and runs with the stationary motion prior.
+* the laser's mounting pose: (static) TF ``base → <scan frame_id>``, else identity.
+
+Bad bags (a broken index, a pre-2.0 ``#ROSRECORD`` bag, a truncated file) give a one-line
+error naming the file.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from dynslam_cli.errors import InputError
+from dynslam_cli.types import Pose2D, Scan
+from formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source
+
+SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOM_TYPE = "nav_msgs/msg/Odometry"
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+BASE_FRAMES = ("base_link", "base_footprint")
+ROSBAG1_MAGIC = b"#ROSBAG V2.0"
+ROSRECORD_MAGIC = b"#ROSRECORD"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def sniff(head: bytes) -> bool:
+    return head.startswith((ROSBAG1_MAGIC, ROSRECORD_MAGIC, SQLITE_MAGIC, MCAP_MAGIC))
+
+
+def stamp_of(msg: Any) -> float:
+    s = msg.header.stamp
+    return float(s.sec) + 1e-9 * float(s.nanosec)
+
+
+def yaw_of(q: Any) -> float:
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def frame(name: str) -> str:
+    return name.lstrip("/")
+
+
+def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: str | None,
+                 source: str, required: bool) -> str | None:
+    """The one topic of a kind: the requested one, the only one, or an error listing them."""
+    if requested is not None:
+        if requested not in candidates:
+            listing = ", ".join(sorted(candidates)) or "none"
+            raise InputError(source, f"no {kind} topic {requested!r} (found: {listing})")
+        return requested
+    if len(candidates) == 1:
+        return next(iter(candidates))
+    if not candidates:
+        if required:
+            raise InputError(source, f"no {kind} messages in this log")
+        return None
+    listing = ", ".join(f"{t} ({n} messages)" for t, n in sorted(candidates.items()))
+    raise InputError(source, f"several {kind} topics: {listing}; choose one with {option}")
+
+
+class RosMessages:
+    """Turns deserialized messages, in log order, into :class:`Scan` records. Shared by the
+    rosbags reader and the plain-MCAP reader."""
+
+    def __init__(self, stats: ReadStats, scan_topic: str, odom_topic: str | None) -> None:
+        self.stats = stats
+        self.scan_topic = scan_topic
+        self.odom_topic = odom_topic
+        self.buffer = OdometryBuffer(stats)
+        self.mounts: dict[str, Pose2D] = {}
+        self.base: str | None = None
+        self.tf_odometry = odom_topic is None
+        self._last_stamp = -math.inf
+
+    def feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
+        if topic == self.scan_topic:
+            yield from self._ready(self.buffer.add_scan(stamp_of(msg), self._scan(msg)))
+        elif topic == self.odom_topic:
+            p = msg.pose.pose
+            self.base = self.base or frame(msg.child_frame_id) or None
+            yield from self._ready(self.buffer.add_odometry(
+                stamp_of(msg), Pose2D(float(p.position.x), float(p.position.y),
+                                      yaw_of(p.orientation))))
+        elif msgtype in TF_TYPES:
+            for tf in msg.transforms:
+                yield from self._transform(tf)
+
+    def _transform(self, tf: Any) -> Iterator[Scan]:
+        parent, child = frame(tf.header.frame_id), frame(tf.child_frame_id)
+        t = tf.transform
+        pose = Pose2D(float(t.translation.x), float(t.translation.y), yaw_of(t.rotation))
+        if parent in BASE_FRAMES or parent == self.base:
+            self.mounts[child] = pose
+        if self.tf_odometry and child in BASE_FRAMES and parent.endswith("odom"):
+            self.base = self.base or child
+            if child == self.base:
+                yield from self._ready(self.buffer.add_odometry(stamp_of(tf), pose))
+
+    def _scan(self, msg: Any) -> tuple[float, np.ndarray, np.ndarray, float, str]:
+        r = np.asarray(msg.ranges, dtype=np.float64)
+        lo, hi = float(msg.range_min), float(msg.range_max)
+        with np.errstate(invalid="ignore"):
+            invalid = np.isnan(r) | np.isneginf(r) | (np.isfinite(r) & ((r < lo) | (r > hi)))
+        if invalid.any():
+            self.stats.warn("invalid ranges (NaN, -inf or outside [range_min, range_max]): "
+                            "beam dropped", count=int(invalid.sum()))
+            r[invalid] = np.nan
+        n = len(r)
+        angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(n)
+        return stamp_of(msg), r, angles, hi, frame(msg.header.frame_id)
+
+    def finish(self) -> Iterator[Scan]:
+        yield from self._ready(self.buffer.finish())
+
+    def _ready(self, ready: Iterable[tuple[object, Pose2D | None, int]]) -> Iterator[Scan]:
+        for payload, pose, _ in ready:
+            stamp, ranges, angles, max_range, frame_id = payload  # type: ignore[misc]
+            if pose is None:
+                self.stats.warn("no odometry (nav_msgs/Odometry or TF odom → base) in the "
+                                "log: stationary motion prior")
+            if stamp <= self._last_stamp:
+                self.stats.warn("time stamp does not increase (scan kept in log order)")
+            self._last_stamp = max(self._last_stamp, stamp)
+            self.stats.scans += 1
+            yield Scan(stamp, ranges, angles, max_range, pose or Pose2D(),
+                       self.mounts.get(frame_id, Pose2D()), 0, pose is not None)
+
+
+class RosbagsReader:
+    """ROS1/ROS2 bags through ``rosbags.highlevel.AnyReader``."""
+
+    format_name: ClassVar[str] = "ros"
+
+    def __init__(self, source: Source, options: ReaderOptions) -> None:
+        self.source = source
+        self.options = options
+        self.stats = ReadStats()
+        if source.path == "-":
+            raise InputError(source.name, "bags cannot be read from standard input")
+        if source.head.startswith(ROSRECORD_MAGIC):
+            raise InputError(source.name, "pre-2.0 ROS bag (#ROSRECORD V1.2) is not supported; "
+                             "convert it with 'rosbag fix' first")
+
+    def scans(self) -> Iterator[Scan]:
+        from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.typesys import Stores, get_typestore
+
+        path = Path(self.source.path)
+        try:
+            with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as bag:
+                yield from self._read(bag)
+        except InputError:
+            raise
+        except (AnyReaderError, AssertionError, OSError, KeyError, ValueError,
+                EOFError) as e:
+            detail = str(e).strip() or type(e).__name__
+            what = "its index is not readable" if isinstance(e, AssertionError) else detail
+            raise InputError(self.source.name, f"cannot read this bag: {what}") from None
+        except Exception as e:  # rosbags raises its own error types per storage plugin
+            if type(e).__module__.startswith("rosbags"):
+                raise InputError(self.source.name, f"cannot read this bag: {e}") from None
+            raise
+
+    def _read(self, bag: Any) -> Iterator[Scan]:
+        conns = bag.connections
+        scans = {c.topic: c.msgcount for c in conns if c.msgtype == SCAN_TYPE}
+        odoms = {c.topic: c.msgcount for c in conns if c.msgtype == ODOM_TYPE}
+        for c in conns:
+            self.stats.records[f"{c.topic} ({c.msgtype})"] += c.msgcount
+        name = self.source.name
+        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True)
+        odom_topic = choose_topic("Odometry", "--odom-topic", odoms, self.options.odom_topic,
+                                  name, False)
+        handler = RosMessages(self.stats, scan_topic or "", odom_topic)
+        wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
+                  or c.msgtype in TF_TYPES]
+        for conn, _, raw in bag.messages(connections=wanted):
+            yield from handler.feed(conn.topic, conn.msgtype, bag.deserialize(raw, conn.msgtype))
+        yield from handler.finish()
+        if self.stats.scans == 0:
+            raise InputError(name, f"no scans on {scan_topic}")
