@@ -15,6 +15,8 @@ import click
 
 from dynslam_cli import __version__
 
+LOG_NAMES = {"carmen": ".log", "player": ".player.log", "rosbag1": ".bag", "rosbag2": "",
+             "rosbag2-mcap": "", "mcap": ".mcap"}
 LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
 
 
@@ -215,6 +217,39 @@ def _report_warnings(name: str, stats: Any) -> None:
 
 
 @main.command()
+@click.argument("log", type=click.Path(exists=True, allow_dash=True))
+@click.option("--format", "format_name", metavar="NAME", help="Log format instead of detecting it.")
+@click.option("--laser", default="front", show_default=True, metavar="WHICH",
+              help="Which laser (Carmen front|rear|3|4; Player index).")
+@click.option("--topic", metavar="TOPIC", help="ROS: the LaserScan topic.")
+@click.option("--odom-topic", metavar="TOPIC", help="ROS: the Odometry topic.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def info(log: str, format_name: str | None, laser: str, topic: str | None,
+         odom_topic: str | None, as_json: bool) -> None:
+    """Describe what LOG holds before processing it.
+
+    Format, record types or topics with message counts, scans, beams, field of view, max
+    range, duration, and whether it carries odometry.
+
+    \b
+    Examples:
+      dynslam info mit-csail.clf
+      dynslam info people.bag --json | jq .scans
+    """
+
+    def work() -> None:
+        import json
+
+        from formats import ReaderOptions, describe_log
+
+        d = describe_log(log, ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
+                                            first_topic=True), format_name)
+        click.echo(json.dumps(d, indent=2, sort_keys=True) if as_json else _table(d))
+
+    _guarded(work)
+
+
+@main.command()
 @click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd"]))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Folder to write <world>.log and truth.json into.")
@@ -235,10 +270,16 @@ def _report_warnings(name: str, stats: Any) -> None:
               help="Range noise standard deviation (metres).")
 @click.option("--record", type=click.Choice(["flaser", "robotlaser1"]), default="flaser",
               show_default=True, help="Carmen laser record to write (with ODOM lines).")
+@click.option("--format", "log_format", default="carmen", show_default=True,
+              type=click.Choice(["carmen", "player", "rosbag1", "rosbag2", "rosbag2-mcap",
+                                 "mcap"]),
+              help="Log format: Carmen text, Player 0.3 text, ROS1 .bag, ROS2 bag folder "
+                   "(sqlite3 or mcap storage), or a plain MCAP file of ROS1 messages.")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
              odometry_noise: float, walkers: int | None, beams: int, fov: float,
-             max_range: float, range_noise: float, record: str, force: bool) -> None:
+             max_range: float, range_noise: float, record: str, log_format: str,
+             force: bool) -> None:
     """Simulate a dynamic WORLD and write its log plus the ground truth.
 
     \b
@@ -259,18 +300,23 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world
         from dynslam_cli.simulate import simulate as run_simulation
         from formats.outdir import atomic_output_dir
+        from formats.simlogs import write_simulated
         from formats.truth import write_carmen, write_truth
 
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
         noise = OdometryNoise().scaled(odometry_noise)
         steps, truth = run_simulation(build_world(world, seed, walkers), duration, rate, seed,
                                       laser, noise)
+        name = f"{world}{LOG_NAMES[log_format]}"
         with atomic_output_dir(output, force) as tmp:
-            with open(tmp / f"{world}.log", "w", encoding="utf-8", newline="\n") as f:
-                n = write_carmen(f, steps, laser, record, world)
+            if log_format == "carmen":
+                with open(tmp / name, "w", encoding="utf-8", newline="\n") as f:
+                    n = write_carmen(f, steps, laser, record, world)
+            else:
+                n = write_simulated(log_format, tmp / name, steps, laser)
             write_truth(tmp / "truth.json", truth)
         click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations → {output}", err=True)
-        click.echo(str(output / f"{world}.log"))
+        click.echo(str(output / name))
 
     _guarded(work)
 

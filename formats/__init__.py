@@ -6,14 +6,18 @@ at the first decompressed bytes), else by file suffix.
 
 from __future__ import annotations
 
+import functools
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from importlib.metadata import entry_points
+from pathlib import Path
 
 from dynslam_cli.errors import InputError
 from formats.base import LogReader, ReaderOptions, ReadStats, Source
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
-           "open_log"]
+           "all_readers", "describe_log", "open_log"]
 
 
 @dataclass(frozen=True)
@@ -25,6 +29,8 @@ class ReaderEntry:
     suffixes: tuple[str, ...]
     sniff: Callable[[bytes], bool]
     factory: Callable[[Source, ReaderOptions], LogReader]
+    folder_marker: str | None = None
+    """A file whose presence in a folder makes the folder a log of this format."""
 
 
 def _carmen(source: Source, options: ReaderOptions) -> LogReader:
@@ -63,27 +69,69 @@ def _ros_sniff(head: bytes) -> bool:
     return sniff(head)
 
 
+def _mcap(source: Source, options: ReaderOptions) -> LogReader:
+    from formats.mcap_plain import McapReader
+
+    return McapReader(source, options)
+
+
+def _mcap_sniff(head: bytes) -> bool:
+    from formats.mcap_plain import sniff
+
+    return sniff(head)
+
+
 READERS: tuple[ReaderEntry, ...] = (
     ReaderEntry("carmen", "Carmen / Radish / Freiburg log (FLASER, ROBOTLASER, RAWLASER...)",
                 (".log", ".clf", ".gfs.log", ".gfs"), _carmen_sniff, _carmen),
     ReaderEntry("player", "Player writelog text log (file versions 0.0, 0.2, 0.3)",
                 (".playerlog",), _player_sniff, _player),
-    ReaderEntry("ros", "ROS1 .bag, ROS2 bag folder / .db3 / .mcap (rosbags)",
-                (".bag", ".db3", ".mcap"), _ros_sniff, _ros),
+    ReaderEntry("ros", "ROS1 .bag, ROS2 bag folder or .db3 (rosbags)",
+                (".bag", ".db3"), _ros_sniff, _ros, folder_marker="metadata.yaml"),
+    ReaderEntry("mcap", "MCAP file: ros2 profile via rosbags, others (ROS1 in MCAP) via mcap",
+                (".mcap",), _mcap_sniff, _mcap),
 )
 
 
+PLUGIN_GROUP = "dynslam.readers"
+
+
+@functools.cache
+def all_readers() -> tuple[ReaderEntry, ...]:
+    """The built-in table, then readers other installed packages register under the
+    ``dynslam.readers`` entry-point group (each entry point names a :class:`ReaderEntry`)."""
+    plugins = []
+    for ep in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
+        try:
+            entry = ep.load()
+        except Exception as e:  # a broken plugin must not break the built-in formats
+            warnings.warn(f"dynslam reader plugin {ep.name!r} failed to load: {e}",
+                          stacklevel=2)
+            continue
+        if isinstance(entry, ReaderEntry):
+            plugins.append(entry)
+        else:
+            warnings.warn(f"dynslam reader plugin {ep.name!r} is not a ReaderEntry",
+                          stacklevel=2)
+    return READERS + tuple(plugins)
+
+
 def reader_names() -> list[str]:
-    return [entry.name for entry in READERS]
+    return [entry.name for entry in all_readers()]
 
 
 def detect_format(source: Source) -> ReaderEntry:
     """The table entry whose sniffer accepts the content, else whose suffix matches."""
-    for entry in READERS:
+    if source.is_dir:
+        for entry in all_readers():
+            if entry.folder_marker and (Path(source.path) / entry.folder_marker).exists():
+                return entry
+        raise InputError(source.name, "a folder, but not a ROS2 bag (no metadata.yaml)")
+    for entry in all_readers():
         if source.head and entry.sniff(source.head):
             return entry
     stem = source.path[:-3] if source.path.endswith(".gz") else source.path
-    for entry in READERS:
+    for entry in all_readers():
         if any(stem.endswith(s) for s in entry.suffixes):
             return entry
     if not source.head and not source.is_dir:
@@ -100,7 +148,7 @@ def open_log(path: str, options: ReaderOptions, format_name: str | None = None
         if format_name is None:
             entry = detect_format(source)
         else:
-            entry = next((e for e in READERS if e.name == format_name), None)  # type: ignore[assignment]
+            entry = next((e for e in all_readers() if e.name == format_name), None)  # type: ignore[assignment]
             if entry is None:
                 raise InputError(source.name, f"unknown format {format_name!r}; known: "
                                  f"{', '.join(reader_names())}")
@@ -108,3 +156,36 @@ def open_log(path: str, options: ReaderOptions, format_name: str | None = None
     except BaseException:
         source.close()
         raise
+
+
+def describe_log(path: str, options: ReaderOptions, format_name: str | None = None
+                 ) -> dict[str, object]:
+    """What a log holds, read through its reader (so it works for every format, plugins
+    included): records or topics with counts, scans, beams, field of view, max range,
+    duration, whether it carries odometry."""
+    import math
+
+    source, entry, reader = open_log(path, options, format_name)
+    n, beams, fovs, max_ranges, odometry = 0, set(), set(), set(), False
+    first = last = math.nan
+    try:
+        for scan in reader.scans():
+            if n == 0:
+                first = scan.stamp
+            last = scan.stamp
+            n += 1
+            beams.add(len(scan.ranges))
+            if len(scan.angles) > 1:
+                fovs.add(round(math.degrees(abs(scan.angles[-1] - scan.angles[0])), 2))
+            max_ranges.add(round(scan.max_range, 3))
+            odometry = odometry or scan.has_odometry
+    finally:
+        source.close()
+    topics = getattr(reader, "topics", None)
+    return {"path": source.name, "format": entry.name,
+            **({"scan_topic": topics[0], "odom_topic": topics[1]} if topics else {}),
+            "records": reader.stats.to_dict()[
+        "records"], "scans": n, "beams": sorted(beams), "fov_deg": sorted(fovs),
+        "max_range_m": sorted(max_ranges), "duration_s": round(last - first, 3) if n else 0.0,
+        "odometry": odometry, "skipped": dict(reader.stats.skipped),
+        "warnings": dict(reader.stats.warnings)}

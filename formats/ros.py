@@ -41,7 +41,9 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def sniff(head: bytes) -> bool:
-    return head.startswith((ROSBAG1_MAGIC, ROSRECORD_MAGIC, SQLITE_MAGIC, MCAP_MAGIC))
+    """ROS1 bags and sqlite3 ROS2 bags; MCAP goes to the mcap entry (which hands ros2-profile
+    files back to this reader)."""
+    return head.startswith((ROSBAG1_MAGIC, ROSRECORD_MAGIC, SQLITE_MAGIC))
 
 
 def stamp_of(msg: Any) -> float:
@@ -58,8 +60,9 @@ def frame(name: str) -> str:
 
 
 def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: str | None,
-                 source: str, required: bool) -> str | None:
-    """The one topic of a kind: the requested one, the only one, or an error listing them."""
+                 source: str, required: bool, first: bool = False) -> str | None:
+    """The one topic of a kind: the requested one, the only one, or an error listing them
+    (``first``: the first in name order instead of the error)."""
     if requested is not None:
         if requested not in candidates:
             listing = ", ".join(sorted(candidates)) or "none"
@@ -71,6 +74,8 @@ def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: 
         if required:
             raise InputError(source, f"no {kind} messages in this log")
         return None
+    if first:
+        return sorted(candidates)[0]
     listing = ", ".join(f"{t} ({n} messages)" for t, n in sorted(candidates.items()))
     raise InputError(source, f"several {kind} topics: {listing}; choose one with {option}")
 
@@ -152,6 +157,7 @@ class RosbagsReader:
         self.source = source
         self.options = options
         self.stats = ReadStats()
+        self.topics: tuple[str | None, str | None] | None = None
         if source.path == "-":
             raise InputError(source.name, "bags cannot be read from standard input")
         if source.head.startswith(ROSRECORD_MAGIC):
@@ -185,9 +191,12 @@ class RosbagsReader:
         for c in conns:
             self.stats.records[f"{c.topic} ({c.msgtype})"] += c.msgcount
         name = self.source.name
-        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True)
+        first = self.options.first_topic
+        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True,
+                                  first)
         odom_topic = choose_topic("Odometry", "--odom-topic", odoms, self.options.odom_topic,
-                                  name, False)
+                                  name, False, first)
+        self.topics = (scan_topic, odom_topic)
         handler = RosMessages(self.stats, scan_topic or "", odom_topic)
         wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
                   or c.msgtype in TF_TYPES]

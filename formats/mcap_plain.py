@@ -1,0 +1,103 @@
+"""MCAP files not written by rosbag2 (profile other than ``ros2``, e.g. ROS1 messages in
+MCAP): read with the ``mcap`` package, messages decoded from their ``ros1msg`` schema with
+rosbags' type system. MCAP files with the ``ros2`` profile go to the rosbags reader."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any, ClassVar
+
+from dynslam_cli.errors import InputError
+from dynslam_cli.types import Scan
+from formats.base import ReaderOptions, ReadStats, Source
+from formats.ros import MCAP_MAGIC, ODOM_TYPE, SCAN_TYPE, TF_TYPES, RosMessages, choose_topic
+
+
+def sniff(head: bytes) -> bool:
+    return head.startswith(MCAP_MAGIC)
+
+
+def _normalised(name: str) -> str:
+    """ROS1 'pkg/Type' → 'pkg/msg/Type' as rosbags names types."""
+    return name if "/msg/" in name else name.replace("/", "/msg/", 1)
+
+
+class McapReader:
+    format_name: ClassVar[str] = "mcap"
+
+    def __init__(self, source: Source, options: ReaderOptions) -> None:
+        self.source = source
+        self.options = options
+        self.stats = ReadStats()
+        self._ros2 = None
+        self.topics: tuple[str | None, str | None] | None = None
+        if source.path == "-":
+            raise InputError(source.name, "MCAP files cannot be read from standard input")
+        from mcap.reader import make_reader
+
+        try:
+            with open(source.path, "rb") as f:
+                profile = make_reader(f).get_header().profile
+        except Exception as e:
+            raise InputError(source.name, f"not a readable MCAP file: {e}") from None
+        if profile == "ros2":
+            from formats.ros import RosbagsReader
+
+            self._ros2 = RosbagsReader(source, options)
+            self.stats = self._ros2.stats
+
+    def scans(self) -> Iterator[Scan]:
+        if self._ros2 is not None:
+            yield from self._ros2.scans()
+            self.topics = self._ros2.topics
+            return
+        from mcap.exceptions import McapError
+        from mcap.reader import make_reader
+
+        name = self.source.name
+        try:
+            with open(self.source.path, "rb") as f:
+                reader = make_reader(f)
+                summary = reader.get_summary()
+                if summary is None:
+                    raise InputError(name, "MCAP file has no summary (truncated?)")
+                yield from self._read(reader, summary)
+        except (McapError, EOFError, ValueError) as e:
+            raise InputError(name, f"cannot read this MCAP file: {e}") from None
+
+    def _read(self, reader: Any, summary: Any) -> Iterator[Scan]:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        types = {}
+        for cid, ch in summary.channels.items():
+            schema = summary.schemas[ch.schema_id]
+            types[ch.topic] = _normalised(schema.name)
+            self.stats.records[f"{ch.topic} ({types[ch.topic]})"] += counts.get(cid, 0)
+        scans = {t: 0 for t, m in types.items() if m == SCAN_TYPE}
+        odoms = {t: 0 for t, m in types.items() if m == ODOM_TYPE}
+        name = self.source.name
+        first = self.options.first_topic
+        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True,
+                                  first)
+        odom_topic = choose_topic("Odometry", "--odom-topic", odoms, self.options.odom_topic,
+                                  name, False, first)
+        self.topics = (scan_topic, odom_topic)
+        store = get_typestore(Stores.EMPTY)
+        for schema in summary.schemas.values():
+            if schema.encoding != "ros1msg":
+                continue
+            store.register(get_types_from_msg(schema.data.decode(), _normalised(schema.name)))
+        handler = RosMessages(self.stats, scan_topic or "", odom_topic)
+        wanted = [t for t, m in types.items()
+                  if t in (scan_topic, odom_topic) or m in TF_TYPES]
+        for schema, channel, message in reader.iter_messages(topics=wanted):
+            if channel.message_encoding != "ros1":
+                raise InputError(name, f"topic {channel.topic}: message encoding "
+                                 f"{channel.message_encoding!r} is not supported")
+            msgtype = _normalised(schema.name)
+            msg = store.deserialize_ros1(message.data, msgtype)
+            yield from handler.feed(channel.topic, msgtype, msg)
+        yield from handler.finish()
+        if self.stats.scans == 0:
+            raise InputError(name, f"no scans on {scan_topic}")
