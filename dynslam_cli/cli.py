@@ -5,8 +5,8 @@ Heavy modules are imported inside the commands so ``dynslam --help`` starts fast
 
 from __future__ import annotations
 
+import os
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -17,7 +17,6 @@ from dynslam_cli import __version__
 
 LOG_NAMES = {"carmen": ".log", "player": ".player.log", "rosbag1": ".bag", "rosbag2": "",
              "rosbag2-mcap": "", "mcap": ".mcap"}
-LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
 
 
 def _fail(message: str) -> None:
@@ -38,20 +37,6 @@ def _guarded(work: Callable[[], Any]) -> Any:
         sys.exit(130)
     except BrokenPipeError:
         sys.exit(1)
-
-
-def default_output(log: str) -> Path:
-    """``./<log stem>_dynslam`` for a log path (``stdin_dynslam`` for ``-``)."""
-    if log == "-":
-        return Path("stdin_dynslam")
-    name = Path(log.rstrip("/")).name
-    changed = True
-    while changed:
-        changed = False
-        for suffix in LOG_SUFFIXES:
-            if name.endswith(suffix) and len(name) > len(suffix):
-                name, changed = name[: -len(suffix)], True
-    return Path(f"{name}_dynslam")
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -123,6 +108,8 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       dynslam process robot.log --laser rear --config tuned.toml --force
       dynslam process lasers.bag --topic /left_scan
     """
+    from dynslam_cli.job import default_output
+
     target = output if output is not None else default_output(log)
     overrides = {"map": {"resolution_m": resolution}} if resolution is not None else {}
     if flaser_fov is not None:
@@ -154,57 +141,21 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
 def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
              config: Any, quiet: bool, snapshot_every: float | None) -> dict[str, Any]:
-    import resource
-
     from tqdm import tqdm
 
-    from dynslam_cli.pipeline import run
-    from formats import open_log
-    from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
-    from formats.picture import SnapshotWriter
+    from dynslam_cli.job import process_log
 
-    start = time.perf_counter()
-    source, entry, reader = open_log(log, options, format_name)
-    with atomic_output_dir(target, force) as tmp:
-        snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
-                     if snapshot_every else None)
-        try:
-            total = source.progress()[1]
-            with tqdm(total=total or None, unit="B", unit_scale=True, disable=quiet or None,
-                      desc=Path(source.name).name, file=sys.stderr, leave=False) as bar:
+    with tqdm(unit="B", unit_scale=True, disable=quiet or None, desc=Path(log).name,
+              file=sys.stderr, leave=False) as bar:
 
-                def on_scan(i: int, scan: Any, slam: Any) -> None:
-                    if i % 20 == 0:
-                        bar.update(source.progress()[0] - bar.n)
-                    if snapshots is not None:
-                        snapshots.maybe_take(scan.stamp, slam)
+        def on_progress(done: int, total: int) -> None:
+            if total and bar.total != total:
+                bar.total = total
+            bar.update(done - bar.n)
 
-                result = run(reader.scans(), config, on_scan)
-        finally:
-            source.close()
-        if snapshots is not None:
-            snapshots.finish(result)
-        _report_warnings(source.name, reader.stats)
-        stamps = result.trajectory[:, 0]
-        summary = {
-            "tool": {"name": "dynslam", "version": __version__},
-            "input": {"path": source.name, "format": entry.name,
-                      "options": {"laser": options.laser, "topic": options.topic,
-                                  "odom_topic": options.odom_topic, "format": format_name}},
-            "reader": reader.stats.to_dict(),
-            "scans_processed": len(stamps),
-            "first_stamp": float(stamps[0]) if len(stamps) else None,
-            "data_duration_s": float(stamps.max() - stamps.min()) if len(stamps) else 0.0,
-            "map": {"rows": int(result.static.prob.shape[0]),
-                    "cols": int(result.static.prob.shape[1]),
-                    "resolution_m": result.static.resolution,
-                    "origin": [result.static.origin_x, result.static.origin_y]},
-            "config": config.to_dict(),
-            "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
-            "wall_time_s": round(time.perf_counter() - start, 3),
-            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
-        }
-        write_results(tmp, result, config, summary)
+        summary, stats = process_log(log, target, force, options, config, format_name,
+                                     snapshot_every, on_progress)
+    _report_warnings(summary["input"]["path"], stats)
     return summary
 
 
@@ -214,6 +165,113 @@ def _report_warnings(name: str, stats: Any) -> None:
             line = stats.first_line.get(reason, 0)
             where = f"{name}:{line}" if line else name
             click.echo(f"dynslam: {kind}: {where}: {reason} (×{count})", err=True)
+
+
+@main.command()
+@click.argument("logs", nargs=-1)
+@click.option("-o", "--output", "outroot", type=click.Path(file_okay=False, path_type=Path),
+              required=True, help="Folder that gets one output folder per log.")
+@click.option("--manifest", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+              help="CSV (log,config,truth,relations) or TOML ([[log]] path=...) list of logs.")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=os.cpu_count() or 1,
+              show_default=True, help="Local worker processes.")
+@click.option("--scheduler", metavar="tcp://HOST:PORT",
+              help="Run on this Dask distributed scheduler (pip install 'dynslam[dask]'); "
+                   "OUTROOT must be storage the workers share.")
+@click.option("--force", is_flag=True, help="Redo logs whose output is already complete.")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False),
+              help="TOML parameters for logs the manifest gives none.")
+@click.option("--resolution", type=float, metavar="M", help="Grid cell size in metres.")
+@click.option("--localization", type=click.Choice(["ekf", "odometry"]))
+@click.option("--no-dynamic", is_flag=True, help="One ordinary grid (ablation).")
+@click.option("--topic", metavar="TOPIC", help="ROS: the LaserScan topic, for every log.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar or table.")
+def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int,
+          scheduler: str | None, force: bool, config_file: str | None,
+          resolution: float | None, localization: str | None, no_dynamic: bool,
+          topic: str | None, quiet: bool) -> None:
+    """Process many logs: LOGS are files, folders (searched for logs) or globs.
+
+    One output folder per log under OUTROOT (the same contract as 'process'; names made
+    unique when two logs share a stem). Resumable: logs whose output is complete are
+    skipped unless --force, so rerunning an interrupted batch does only what is missing. A
+    failing log is recorded and the others go on; the exit code is 1 if any failed.
+    OUTROOT/batch.csv and batch.json list per log: status, scans, data duration, wall time,
+    × real time, and scores where the manifest gives truth or relations.
+
+    \b
+    Examples:
+      dynslam batch data/*.clf -o out/ --jobs 2
+      dynslam batch --manifest runs.csv -o out/
+      dynslam batch radish/ -o out/ --scheduler tcp://10.0.0.5:8786
+    """
+    if not logs and manifest is None:
+        raise click.UsageError("give logs or --manifest")
+    overrides: dict[str, dict[str, Any]] = {}
+    if resolution is not None:
+        overrides["map"] = {"resolution_m": resolution}
+    if localization is not None:
+        overrides["ekf"] = {"localization": localization}
+    if no_dynamic:
+        overrides["dynamic"] = {"enabled": False}
+
+    def work() -> None:
+        from tqdm import tqdm
+
+        from dynslam_cli.batch import expand_logs, read_manifest, run_batch, run_dask, run_local
+        from dynslam_cli.config import load_config
+
+        load_config(Path(config_file) if config_file else None, overrides)  # fail early
+        rows = [{"log": log, "config": None, "truth": None, "relations": None}
+                for log in expand_logs(logs)]
+        if manifest is not None:
+            rows += read_manifest(manifest)
+        client = _dask_client(scheduler) if scheduler else None
+        execute = ((lambda js: run_dask(js, client)) if client is not None
+                   else (lambda js: run_local(js, jobs)))
+        with tqdm(total=len(rows), unit="log", disable=quiet or None, file=sys.stderr) as bar:
+            results = run_batch(rows, outroot, force, overrides,
+                                {"topic": topic} if topic else {}, config_file, execute,
+                                lambda r: bar.update(1))
+        if client is not None:
+            client.close()
+        _batch_report(results, quiet)
+        if any(r["status"] == "failed" for r in results):
+            sys.exit(1)
+
+    _guarded(work)
+
+
+def _dask_client(address: str) -> Any:
+    from dynslam_cli.errors import DynslamError
+
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise DynslamError("--scheduler needs Dask: pip install 'dynslam[dask]'") from None
+    try:
+        return Client(address, timeout="10s")
+    except (OSError, TimeoutError) as e:
+        raise DynslamError(f"cannot reach the Dask scheduler at {address}: {e}") from None
+
+
+def _batch_report(results: list[dict[str, Any]], quiet: bool) -> None:
+    done = [r for r in results if r["status"] == "done"]
+    skipped = [r for r in results if r["status"] == "skipped"]
+    failed = [r for r in results if r["status"] == "failed"]
+    for r in failed:
+        click.echo(f"dynslam: failed: {r['error']}", err=True)
+    if not quiet:
+        for r in sorted(results, key=lambda r: r["log"]):
+            xrt = r.get("x_real_time")
+            click.echo(f"{r['status']:<8} {r.get('scans', ''):>6} "
+                       f"{(str(xrt) + '×') if xrt else '':>8}  {r['log']}", err=True)
+    if not done and not failed:
+        click.echo(f"dynslam: nothing to do: all {len(skipped)} outputs are complete "
+                   "(--force redoes them)", err=True)
+    else:
+        click.echo(f"dynslam: {len(done)} done, {len(skipped)} skipped, {len(failed)} failed",
+                   err=True)
 
 
 @main.command()

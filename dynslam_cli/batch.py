@@ -1,0 +1,263 @@
+"""Batch reprocessing: many logs (each possibly with its own config and truth), on local
+processes or a Dask distributed cluster, resumable, one failure never stopping the rest.
+
+Each log gets ``OUTROOT/<stem>`` (``<stem>-<hash>`` when two logs share a stem), written with
+the same atomic contract as ``dynslam process``; a folder that already holds a complete
+output (its ``summary.json``) is skipped unless ``force``. The batch summary goes to
+``OUTROOT/batch.csv`` and ``OUTROOT/batch.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import hashlib
+import io
+import json
+import os
+import tempfile
+import time
+import tomllib
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from dynslam_cli.errors import ConfigError, DynslamError, InputError
+from dynslam_cli.job import LOG_SUFFIXES, default_output
+
+CSV_FIELDS = ("log", "output", "status", "error", "format", "scans", "data_duration_s",
+              "wall_time_s", "x_real_time", "ate_rmse_m", "odometry_ate_rmse_m",
+              "relation_translational_m", "relation_rotational_deg")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One log of a batch. Picklable: it travels to worker processes and Dask workers."""
+
+    log: str
+    output: str
+    config: str | None = None
+    truth: str | None = None
+    relations: str | None = None
+    overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
+    force: bool = False
+    reader: dict[str, Any] = field(default_factory=dict)
+
+
+def expand_logs(items: Iterable[str]) -> list[str]:
+    """Paths, folders (searched recursively for logs and ROS2 bag folders) and globs."""
+    out: list[str] = []
+    for item in items:
+        matches = sorted(glob.glob(item, recursive=True)) if glob.has_magic(item) else [item]
+        if not matches:
+            raise InputError(item, "no file matches this pattern")
+        for m in matches:
+            p = Path(m)
+            if p.is_dir() and not (p / "metadata.yaml").exists():
+                found = sorted(str(f) for f in p.rglob("*") if _is_log(f))
+                if not found:
+                    raise InputError(m, "folder holds no logs")
+                out += found
+            elif p.exists():
+                out.append(m)
+            else:
+                raise InputError(m, "no such file")
+    return list(dict.fromkeys(out))
+
+
+def _is_log(path: Path) -> bool:
+    if path.is_dir():
+        return (path / "metadata.yaml").exists()
+    if path.name == "metadata.yaml" or path.parent.joinpath("metadata.yaml").exists():
+        return False
+    return path.name.endswith(LOG_SUFFIXES)
+
+
+def read_manifest(path: Path) -> list[dict[str, str | None]]:
+    """Rows {log, config, truth, relations} from a CSV (header with at least ``log``) or a
+    TOML file (``[[log]]`` tables with ``path`` and optional keys); relative paths are taken
+    from the manifest's folder."""
+    base = path.parent
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise InputError(str(path), f"cannot read: {e.strerror}") from None
+    rows: list[dict[str, Any]]
+    if path.suffix == ".toml":
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(str(path), f"not valid TOML: {e}") from None
+        rows = [{"log": r.get("path"), **{k: r.get(k) for k in ("config", "truth",
+                                                                  "relations")}}
+                for r in data.get("log", [])]
+    else:
+        reader = csv.DictReader(io.StringIO(text))
+        if reader.fieldnames is None or "log" not in reader.fieldnames:
+            raise InputError(str(path), "a CSV manifest needs a header with a 'log' column", 1)
+        rows = [dict(r) for r in reader]
+    out = []
+    for i, row in enumerate(rows, 2 if path.suffix != ".toml" else 1):
+        if not row.get("log"):
+            raise InputError(str(path), "a row without a log path", i)
+        out.append({k: (str(base / v) if v and not os.path.isabs(v) else v or None)
+                    for k, v in ((k, row.get(k)) for k in ("log", "config", "truth",
+                                                           "relations"))})
+    if not out:
+        raise InputError(str(path), "the manifest lists no logs")
+    return out
+
+
+def output_names(logs: list[str]) -> list[str]:
+    """Folder names under OUTROOT: the log's stem, made unique by a short path hash."""
+    stems = [default_output(log).name.removesuffix("_dynslam") for log in logs]
+    counts: dict[str, int] = {}
+    for s in stems:
+        counts[s] = counts.get(s, 0) + 1
+    return [s if counts[s] == 1 else
+            f"{s}-{hashlib.sha1(os.path.abspath(log).encode()).hexdigest()[:8]}"
+            for s, log in zip(stems, logs, strict=True)]
+
+
+def complete(output: Path) -> bool:
+    return (output / "summary.json").is_file()
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Process one log (and score it); never raises for the log's own problems."""
+    from dynslam_cli.config import load_config
+    from formats import ReaderOptions
+
+    row: dict[str, Any] = {"log": job.log, "output": job.output, "status": "done",
+                           "error": ""}
+    start = time.perf_counter()
+    try:
+        from dynslam_cli.job import process_log
+
+        config = load_config(Path(job.config) if job.config else None, job.overrides)
+        summary, _ = process_log(job.log, Path(job.output), job.force,
+                                 ReaderOptions(**job.reader), config)
+        dur, wall = summary["data_duration_s"], summary["wall_time_s"]
+        row.update(format=summary["input"]["format"], scans=summary["scans_processed"],
+                   data_duration_s=round(dur, 3), wall_time_s=wall,
+                   x_real_time=round(dur / wall, 1) if wall else None)
+        row.update(_scores(job))
+    except (DynslamError, ConfigError) as e:
+        row.update(status="failed", error=str(e))
+    except Exception as e:  # a bug on one log must not stop the batch; it is reported
+        row.update(status="failed", error=f"internal error: {type(e).__name__}: {e}")
+    row.setdefault("wall_time_s", round(time.perf_counter() - start, 3))
+    return row
+
+
+def _scores(job: Job) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    folder = Path(job.output)
+    if job.truth:
+        from dynslam_cli.evaluate import MapThresholds, score_run
+        from formats.landmarks import read_landmarks
+        from formats.mapfile import read_map
+        from formats.truth import read_truth
+        from formats.tum import read_tum
+
+        s, d = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
+        with open(folder / "landmarks.csv", encoding="utf-8") as f:
+            lms = read_landmarks(f)
+        r = score_run(s.grid, d.grid, read_tum(folder / "trajectory.tum"), lms,
+                      read_truth(Path(job.truth)), MapThresholds(s.free_thresh,
+                                                                 s.occupied_thresh))
+        out["ate_rmse_m"] = r["trajectory"]["ate_rmse_m"]
+        out["odometry_ate_rmse_m"] = r["trajectory"]["odometry_ate_rmse_m"]
+        out["scores"] = r
+    if job.relations:
+        from dynslam_cli.evaluate import relation_errors
+        from formats.relations import read_relations
+        from formats.tum import read_tum
+
+        r = relation_errors(read_tum(folder / "trajectory.tum"), read_relations(job.relations))
+        out["relation_translational_m"] = r["translational_m"]["mean"]
+        out["relation_rotational_deg"] = r["rotational_deg"]["mean"]
+    return out
+
+
+def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
+         overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
+         default_config: str | None) -> tuple[list[Job], list[dict[str, Any]]]:
+    """Jobs to run, and rows for logs skipped because their output is complete."""
+    names = output_names([str(r["log"]) for r in rows])
+    jobs, skipped = [], []
+    for row, name in zip(rows, names, strict=True):
+        out = outroot / name
+        if complete(out) and not force:
+            skipped.append({"log": row["log"], "output": str(out), "status": "skipped",
+                            "error": ""})
+            continue
+        jobs.append(Job(str(row["log"]), str(out), row.get("config") or default_config,
+                        row.get("truth"), row.get("relations"), overrides,
+                        force or out.exists(), reader))
+    return jobs, skipped
+
+
+def run_local(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
+    """Results as they finish, on ``workers`` local processes (1: in this process)."""
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield run_job(job)
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(run_job, job) for job in jobs]
+        for f in as_completed(futures):
+            yield f.result()
+
+
+def run_dask(jobs: list[Job], client: Any) -> Iterator[dict[str, Any]]:
+    """Results as they finish, on a Dask distributed cluster (workers write to OUTROOT,
+    which must be storage they share with this machine)."""
+    from dask.distributed import as_completed
+
+    futures = client.map(run_job, jobs, pure=False)
+    for f in as_completed(futures):
+        yield f.result()
+
+
+def write_summary(outroot: Path, rows: list[dict[str, Any]]) -> None:
+    """batch.csv and batch.json, each written to a temporary file and renamed."""
+    rows = sorted(rows, key=lambda r: r["log"])
+    _atomic_write(outroot / "batch.json", json.dumps(rows, indent=2, sort_keys=True) + "\n")
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, CSV_FIELDS, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow(r)
+    _atomic_write(outroot / "batch.csv", buf.getvalue())
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def run_batch(rows: list[dict[str, str | None]], outroot: Path, force: bool,
+              overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
+              default_config: str | None, execute: Callable[[list[Job]],
+                                                            Iterable[dict[str, Any]]],
+              on_done: Callable[[dict[str, Any]], None] | None = None
+              ) -> list[dict[str, Any]]:
+    """Plan, run what is missing through ``execute``, write the summary; returns all rows."""
+    outroot.mkdir(parents=True, exist_ok=True)
+    jobs, results = plan(rows, outroot, force, overrides, reader, default_config)
+    for r in results:
+        if on_done:
+            on_done(r)
+    for r in execute(jobs):
+        results.append(r)
+        if on_done:
+            on_done(r)
+    write_summary(outroot, results)
+    return results
+

@@ -1,0 +1,81 @@
+"""One log through the whole tool: read, run the pipeline, write the output folder
+atomically. Used by ``dynslam process`` (with a progress bar) and ``dynslam batch`` (in
+worker processes or on a Dask cluster), so both honour the same output contract."""
+
+from __future__ import annotations
+
+import resource
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from dynslam_cli import __version__
+from dynslam_cli.config import Config
+from dynslam_cli.pipeline import run
+
+LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
+
+
+def default_output(log: str) -> Path:
+    """``./<log stem>_dynslam`` for a log path (``stdin_dynslam`` for ``-``)."""
+    if log == "-":
+        return Path("stdin_dynslam")
+    name = Path(log.rstrip("/")).name
+    changed = True
+    while changed:
+        changed = False
+        for suffix in LOG_SUFFIXES:
+            if name.endswith(suffix) and len(name) > len(suffix):
+                name, changed = name[: -len(suffix)], True
+    return Path(f"{name}_dynslam")
+
+
+def process_log(log: str, target: Path, force: bool, options: Any, config: Config,
+                format_name: str | None = None, snapshot_every: float | None = None,
+                on_progress: Callable[[int, int], None] | None = None
+                ) -> tuple[dict[str, Any], Any]:
+    """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
+    ``on_progress(bytes_done, bytes_total)`` is called every few scans."""
+    from formats import open_log
+    from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
+    from formats.picture import SnapshotWriter
+
+    start = time.perf_counter()
+    source, entry, reader = open_log(log, options, format_name)
+    with atomic_output_dir(target, force) as tmp:
+        snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
+                     if snapshot_every else None)
+        try:
+            def on_scan(i: int, scan: Any, slam: Any) -> None:
+                if on_progress is not None and i % 20 == 0:
+                    on_progress(*source.progress())
+                if snapshots is not None:
+                    snapshots.maybe_take(scan.stamp, slam)
+
+            result = run(reader.scans(), config, on_scan)
+        finally:
+            source.close()
+        if snapshots is not None:
+            snapshots.finish(result)
+        stamps = result.trajectory[:, 0]
+        summary = {
+            "tool": {"name": "dynslam", "version": __version__},
+            "input": {"path": source.name, "format": entry.name,
+                      "options": {"laser": options.laser, "topic": options.topic,
+                                  "odom_topic": options.odom_topic, "format": format_name}},
+            "reader": reader.stats.to_dict(),
+            "scans_processed": len(stamps),
+            "first_stamp": float(stamps[0]) if len(stamps) else None,
+            "data_duration_s": float(stamps.max() - stamps.min()) if len(stamps) else 0.0,
+            "map": {"rows": int(result.static.prob.shape[0]),
+                    "cols": int(result.static.prob.shape[1]),
+                    "resolution_m": result.static.resolution,
+                    "origin": [result.static.origin_x, result.static.origin_y]},
+            "config": config.to_dict(),
+            "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
+            "wall_time_s": round(time.perf_counter() - start, 3),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        }
+        write_results(tmp, result, config, summary)
+    return summary, reader.stats

@@ -1,0 +1,154 @@
+"""dynslam batch: local processes, Dask (in-process cluster and real scheduler/worker
+processes), resumability, failures, manifests, unique names."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from formats.outdir import OUTPUT_FILES
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> Path:
+    """Four small simulated logs (two share a stem, in different folders), their truths,
+    and one bad log."""
+    from click.testing import CliRunner
+
+    from dynslam_cli.cli import main
+
+    root = tmp_path_factory.mktemp("logs")
+    for world, seed, sub in (("hall", 1, "a"), ("arena", 2, "a"), ("hall", 3, "b"),
+                             ("crowd", 4, "b")):
+        r = CliRunner().invoke(main, ["simulate", world, "-o", str(root / f"sim{seed}"),
+                                      "--duration", "20", "--seed", str(seed)])
+        assert r.exit_code == 0, r.output
+        (root / sub).mkdir(exist_ok=True)
+        shutil.copy(root / f"sim{seed}" / f"{world}.log", root / sub / f"{world}.log")
+    (root / "b" / "broken.log").write_text("FLASER 3 1 2\n")
+    return root
+
+
+def read_rows(outroot: Path) -> dict[str, dict[str, str]]:
+    with open(outroot / "batch.csv") as f:
+        return {Path(r["log"]).parent.name + "/" + Path(r["log"]).name: r
+                for r in csv.DictReader(f)}
+
+
+def test_local_batch_resumes_and_reports_failures(logs, cli, tmp_path):
+    out = tmp_path / "out"
+    r = cli("batch", logs / "a", logs / "b", "-o", out, "--jobs", "2", "-q")
+    assert r.exit_code == 1  # one log is bad
+    rows = read_rows(out)
+    assert {k: v["status"] for k, v in rows.items()} == {
+        "a/hall.log": "done", "a/arena.log": "done", "b/hall.log": "done",
+        "b/crowd.log": "done", "b/broken.log": "failed"}
+    assert "broken.log:1: FLASER has 3 fields" in rows["b/broken.log"]["error"]
+    folders = sorted(p.name for p in out.iterdir() if p.is_dir())
+    assert len(folders) == 4 and "arena" in folders and "crowd" in folders
+    assert sum(f.startswith("hall-") for f in folders) == 2  # same stem, unique names
+    for f in folders:
+        assert sorted(p.name for p in (out / f).iterdir()) == sorted(OUTPUT_FILES)
+    assert float(rows["a/hall.log"]["x_real_time"]) > 0
+    assert json.loads((out / "batch.json").read_text())[0]["log"]
+
+    # rerun: nothing to do for the complete ones (the bad one is tried again)
+    r = cli("batch", logs / "a", logs / "b", "-o", out, "--jobs", "2")
+    assert "0 done, 4 skipped, 1 failed" in r.stderr
+    # delete one output: only that one is redone
+    shutil.rmtree(out / "arena")
+    r = cli("batch", logs / "a", logs / "b", "-o", out, "--jobs", "1")
+    assert "1 done, 3 skipped, 1 failed" in r.stderr
+    assert read_rows(out)["a/arena.log"]["status"] == "done"
+
+
+def test_all_complete_says_nothing_to_do(logs, cli, tmp_path):
+    out = tmp_path / "out"
+    assert cli("batch", logs / "a", "-o", out, "-q").exit_code == 0
+    r = cli("batch", logs / "a", "-o", out)
+    assert r.exit_code == 0 and "nothing to do" in r.stderr
+
+
+def test_manifest_with_truth_scores(logs, cli, tmp_path):
+    manifest = tmp_path / "runs.csv"
+    manifest.write_text("log,config,truth,relations\n"
+                        f"{logs / 'a/hall.log'},,{logs / 'sim1/truth.json'},\n")
+    cfg = tmp_path / "coarse.toml"
+    cfg.write_text("[map]\nresolution_m = 0.1\n")
+    toml = tmp_path / "runs.toml"
+    toml.write_text(f'[[log]]\npath = "{logs / "a/arena.log"}"\nconfig = "coarse.toml"\n')
+    out = tmp_path / "out"
+    r = cli("batch", "--manifest", manifest, "-o", out, "-q")
+    assert r.exit_code == 0, r.stderr
+    row = read_rows(out)["a/hall.log"]
+    assert 0 <= float(row["ate_rmse_m"]) < float(row["odometry_ate_rmse_m"])
+    r = cli("batch", "--manifest", toml, "-o", out / "t", "-q")
+    assert r.exit_code == 0, r.stderr
+    assert "resolution: 0.100000" in (out / "t/arena/static.yaml").read_text()
+
+
+def test_dask_local_cluster(logs, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    from dynslam_cli.batch import expand_logs, run_batch, run_dask
+
+    rows = [{"log": p, "config": None, "truth": None, "relations": None}
+            for p in expand_logs([str(logs / "a")])]
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        results = run_batch(rows, tmp_path / "out", False, {}, {}, None,
+                            lambda jobs: run_dask(jobs, client))
+    assert sorted(r["status"] for r in results) == ["done", "done"]
+    assert (tmp_path / "out/hall/summary.json").exists()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_dask_scheduler_and_worker_processes(logs, tmp_path):
+    pytest.importorskip("dask.distributed")
+    bindir = Path(sys.executable).parent
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1",
+                               "--port", str(port), "--no-dashboard"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.time() + 30
+        while time.time() < deadline:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.2)
+        procs.append(subprocess.Popen([str(bindir / "dask"), "worker", address, "--nworkers",
+                                       "1", "--nthreads", "1", "--no-dashboard"],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        out = tmp_path / "out"
+        proc = subprocess.run([str(bindir / "dynslam"), "batch", str(logs / "b"), "-o",
+                               str(out), "--scheduler", address, "-q"],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 1, proc.stderr  # broken.log fails, the others finish
+        rows = read_rows(out)
+        assert [rows[k]["status"] for k in sorted(rows)] == ["failed", "done", "done"]
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+            p.wait(timeout=30)
+
+
+def test_unreachable_scheduler_is_a_clear_error(logs, cli, tmp_path):
+    pytest.importorskip("dask.distributed")
+    r = cli("batch", logs / "a", "-o", tmp_path / "o", "--scheduler",
+            f"tcp://127.0.0.1:{_free_port()}")
+    assert r.exit_code == 1 and "cannot reach the Dask scheduler" in r.stderr
