@@ -2,7 +2,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install test lint samples bench clean
+.PHONY: install test lint samples bench accuracy clean
 
 install: $(BIN)/dynslam
 
@@ -22,6 +22,14 @@ lint: install
 samples: install
 	$(BIN)/dynslam simulate hall -o samples/hall --duration 90 --rate 5 --seed 1 --force
 	$(BIN)/dynslam simulate corridors -o samples/corridors --duration 160 --rate 4 --seed 2 --force
+
+# Speed and memory of the real pipeline (not part of the tests): bench/results.json.
+bench: install
+	$(BIN)/python bench/run.py --runs 3
+
+# Accuracy of every built-in world, with and without the paper's components.
+accuracy: install
+	$(BIN)/python bench/accuracy.py
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache

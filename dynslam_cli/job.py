@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import resource
 import time
+from array import array
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -46,8 +47,10 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     with atomic_output_dir(target, force) as tmp:
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
                      if snapshot_every else None)
+        ticks = array("d")
         try:
             def on_scan(i: int, scan: Any, slam: Any) -> None:
+                ticks.append(time.perf_counter())
                 if on_progress is not None and i % 20 == 0:
                     on_progress(*source.progress())
                 if snapshots is not None:
@@ -75,7 +78,21 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "config": config.to_dict(),
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
             "wall_time_s": round(time.perf_counter() - start, 3),
+            "scan_time_ms": _scan_times(ticks),
             "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
         }
         write_results(tmp, result, config, summary)
     return summary, reader.stats
+
+
+def _scan_times(ticks: array) -> dict[str, float | None]:
+    """Median per-scan time (ms) of the first and the last 10% of scans: does a long log
+    slow down?"""
+    import numpy as np
+
+    dt = np.diff(np.asarray(ticks)) * 1000.0
+    k = len(dt) // 10
+    if k == 0:
+        return {"first_10pct_median": None, "last_10pct_median": None}
+    return {"first_10pct_median": round(float(np.median(dt[:k])), 3),
+            "last_10pct_median": round(float(np.median(dt[-k:])), 3)}

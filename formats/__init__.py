@@ -7,11 +7,13 @@ at the first decompressed bytes), else by file suffix.
 from __future__ import annotations
 
 import functools
+import importlib
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from pathlib import Path
+from typing import Any
 
 from dynslam_cli.errors import InputError
 from formats.base import LogReader, ReaderOptions, ReadStats, Source
@@ -33,63 +35,29 @@ class ReaderEntry:
     """A file whose presence in a folder makes the folder a log of this format."""
 
 
-def _carmen(source: Source, options: ReaderOptions) -> LogReader:
-    from formats.carmen import CarmenReader
+def _lazy(module: str, name: str) -> Callable[..., Any]:
+    """A function that imports ``module`` on first call and calls its ``name``, so the
+    table costs nothing until a format is used (and ``--help`` stays fast)."""
 
-    return CarmenReader(source, options)
+    def call(*args: Any) -> Any:
+        return getattr(importlib.import_module(module), name)(*args)
 
-
-def _carmen_sniff(head: bytes) -> bool:
-    from formats.carmen import sniff
-
-    return sniff(head)
-
-
-def _player(source: Source, options: ReaderOptions) -> LogReader:
-    from formats.player import PlayerReader
-
-    return PlayerReader(source, options)
-
-
-def _player_sniff(head: bytes) -> bool:
-    from formats.player import sniff
-
-    return sniff(head)
-
-
-def _ros(source: Source, options: ReaderOptions) -> LogReader:
-    from formats.ros import RosbagsReader
-
-    return RosbagsReader(source, options)
-
-
-def _ros_sniff(head: bytes) -> bool:
-    from formats.ros import sniff
-
-    return sniff(head)
-
-
-def _mcap(source: Source, options: ReaderOptions) -> LogReader:
-    from formats.mcap_plain import McapReader
-
-    return McapReader(source, options)
-
-
-def _mcap_sniff(head: bytes) -> bool:
-    from formats.mcap_plain import sniff
-
-    return sniff(head)
+    return call
 
 
 READERS: tuple[ReaderEntry, ...] = (
     ReaderEntry("carmen", "Carmen / Radish / Freiburg log (FLASER, ROBOTLASER, RAWLASER...)",
-                (".log", ".clf", ".gfs.log", ".gfs"), _carmen_sniff, _carmen),
+                (".log", ".clf", ".gfs.log", ".gfs"), _lazy("formats.carmen", "sniff"),
+                _lazy("formats.carmen", "CarmenReader")),
     ReaderEntry("player", "Player writelog text log (file versions 0.0, 0.2, 0.3)",
-                (".playerlog",), _player_sniff, _player),
+                (".playerlog",), _lazy("formats.player", "sniff"),
+                _lazy("formats.player", "PlayerReader")),
     ReaderEntry("ros", "ROS1 .bag, ROS2 bag folder or .db3 (rosbags)",
-                (".bag", ".db3"), _ros_sniff, _ros, folder_marker="metadata.yaml"),
+                (".bag", ".db3"), _lazy("formats.ros", "sniff"),
+                _lazy("formats.ros", "RosbagsReader"), folder_marker="metadata.yaml"),
     ReaderEntry("mcap", "MCAP file: ros2 profile via rosbags, others (ROS1 in MCAP) via mcap",
-                (".mcap",), _mcap_sniff, _mcap),
+                (".mcap",), _lazy("formats.mcap_plain", "sniff"),
+                _lazy("formats.mcap_plain", "McapReader")),
 )
 
 

@@ -130,6 +130,16 @@ class Source:
             self._raw.close()
 
 
+def read_text_lines(path: Path | str) -> list[str]:
+    """All lines of a small text file (TUM, relations); unreadable or binary is an error."""
+    try:
+        return Path(path).read_text(encoding="utf-8").splitlines()
+    except OSError as e:
+        raise InputError(str(path), f"cannot read: {e.strerror}") from None
+    except UnicodeDecodeError:
+        raise InputError(str(path), "not a text file") from None
+
+
 def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     """(line number, line without its end, whether the line was terminated) for a text log.
 

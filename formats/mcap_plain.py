@@ -10,7 +10,7 @@ from typing import Any, ClassVar
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Scan
 from formats.base import ReaderOptions, ReadStats, Source
-from formats.ros import MCAP_MAGIC, ODOM_TYPE, SCAN_TYPE, TF_TYPES, RosMessages, choose_topic
+from formats.ros import MCAP_MAGIC, TF_TYPES, RosMessages, choose_topics
 
 
 def sniff(head: bytes) -> bool:
@@ -74,21 +74,15 @@ class McapReader:
             schema = summary.schemas[ch.schema_id]
             types[ch.topic] = _normalised(schema.name)
             self.stats.records[f"{ch.topic} ({types[ch.topic]})"] += counts.get(cid, 0)
-        scans = {t: 0 for t, m in types.items() if m == SCAN_TYPE}
-        odoms = {t: 0 for t, m in types.items() if m == ODOM_TYPE}
         name = self.source.name
-        first = self.options.first_topic
-        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True,
-                                  first)
-        odom_topic = choose_topic("Odometry", "--odom-topic", odoms, self.options.odom_topic,
-                                  name, False, first)
+        scan_topic, odom_topic = choose_topics(types, self.options, name)
         self.topics = (scan_topic, odom_topic)
         store = get_typestore(Stores.EMPTY)
         for schema in summary.schemas.values():
             if schema.encoding != "ros1msg":
                 continue
             store.register(get_types_from_msg(schema.data.decode(), _normalised(schema.name)))
-        handler = RosMessages(self.stats, scan_topic or "", odom_topic)
+        handler = RosMessages(self.stats, scan_topic, odom_topic)
         wanted = [t for t, m in types.items()
                   if t in (scan_topic, odom_topic) or m in TF_TYPES]
         for schema, channel, message in reader.iter_messages(topics=wanted):

@@ -7,17 +7,13 @@ from pathlib import Path
 import numpy as np
 
 from dynslam_cli.errors import InputError
+from formats.base import read_text_lines
 
 
 def read_relations(path: Path | str) -> np.ndarray:
     """N×8 array; blank and ``#`` lines skipped; anything else malformed is an error."""
     name = str(path)
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as e:
-        raise InputError(name, f"cannot read: {e.strerror}") from None
-    except UnicodeDecodeError:
-        raise InputError(name, "not a text file") from None
+    lines = read_text_lines(path)
     rows = []
     for lineno, line in enumerate(lines, 1):
         fields = line.split()

@@ -80,6 +80,18 @@ def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: 
     raise InputError(source, f"several {kind} topics: {listing}; choose one with {option}")
 
 
+def choose_topics(types: dict[str, str], options: ReaderOptions, source: str
+                  ) -> tuple[str, str | None]:
+    """(scan topic, odometry topic or None) from {topic: message type}, by the options."""
+    first = options.first_topic
+    scans = {t: 0 for t, m in types.items() if m == SCAN_TYPE}
+    odoms = {t: 0 for t, m in types.items() if m == ODOM_TYPE}
+    scan = choose_topic("LaserScan", "--topic", scans, options.topic, source, True, first)
+    odom = choose_topic("Odometry", "--odom-topic", odoms, options.odom_topic, source, False,
+                        first)
+    return scan or "", odom
+
+
 class RosMessages:
     """Turns deserialized messages, in log order, into :class:`Scan` records. Shared by the
     rosbags reader and the plain-MCAP reader."""
@@ -186,18 +198,13 @@ class RosbagsReader:
 
     def _read(self, bag: Any) -> Iterator[Scan]:
         conns = bag.connections
-        scans = {c.topic: c.msgcount for c in conns if c.msgtype == SCAN_TYPE}
-        odoms = {c.topic: c.msgcount for c in conns if c.msgtype == ODOM_TYPE}
         for c in conns:
             self.stats.records[f"{c.topic} ({c.msgtype})"] += c.msgcount
         name = self.source.name
-        first = self.options.first_topic
-        scan_topic = choose_topic("LaserScan", "--topic", scans, self.options.topic, name, True,
-                                  first)
-        odom_topic = choose_topic("Odometry", "--odom-topic", odoms, self.options.odom_topic,
-                                  name, False, first)
+        scan_topic, odom_topic = choose_topics({c.topic: c.msgtype for c in conns},
+                                               self.options, name)
         self.topics = (scan_topic, odom_topic)
-        handler = RosMessages(self.stats, scan_topic or "", odom_topic)
+        handler = RosMessages(self.stats, scan_topic, odom_topic)
         wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
                   or c.msgtype in TF_TYPES]
         for conn, _, raw in bag.messages(connections=wanted):

@@ -73,16 +73,8 @@ def write_rosbag1(path: Path, steps: Iterable[SimStep], laser: LaserModel) -> in
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
-    n = 0
     with Writer(path) as w:
-        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
-        co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
-        for s in steps:
-            scan, odom, ns = _messages(ts, s, laser)
-            w.write(co, ns, ts.serialize_ros1(odom, "nav_msgs/msg/Odometry"))
-            w.write(cs, ns, ts.serialize_ros1(scan, "sensor_msgs/msg/LaserScan"))
-            n += 1
-    return n
+        return _write_bag(w, ts, ts.serialize_ros1, steps, laser)
 
 
 def write_rosbag2(path: Path, steps: Iterable[SimStep], laser: LaserModel,
@@ -92,15 +84,21 @@ def write_rosbag2(path: Path, steps: Iterable[SimStep], laser: LaserModel,
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    n = 0
     with Writer(path, version=9, storage_plugin=plugin) as w:
-        cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
-        co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
-        for s in steps:
-            scan, odom, ns = _messages(ts, s, laser)
-            w.write(co, ns, ts.serialize_cdr(odom, "nav_msgs/msg/Odometry"))
-            w.write(cs, ns, ts.serialize_cdr(scan, "sensor_msgs/msg/LaserScan"))
-            n += 1
+        return _write_bag(w, ts, ts.serialize_cdr, steps, laser)
+
+
+def _write_bag(w: Any, ts: Any, serialize: Any, steps: Iterable[SimStep],
+               laser: LaserModel) -> int:
+    """/odom then /scan for every step, through an open rosbags writer."""
+    cs = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+    co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+    n = 0
+    for s in steps:
+        scan, odom, ns = _messages(ts, s, laser)
+        w.write(co, ns, serialize(odom, "nav_msgs/msg/Odometry"))
+        w.write(cs, ns, serialize(scan, "sensor_msgs/msg/LaserScan"))
+        n += 1
     return n
 
 

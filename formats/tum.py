@@ -14,6 +14,7 @@ from typing import TextIO
 import numpy as np
 
 from dynslam_cli.errors import InputError
+from formats.base import read_text_lines
 
 
 def write_tum(out: TextIO, trajectory: np.ndarray) -> None:
@@ -27,12 +28,7 @@ def read_tum(path: Path | str) -> np.ndarray:
     """Read a TUM file into an N×4 array (stamp, x, y, yaw); strict about the layout."""
     rows = []
     name = str(path)
-    try:
-        lines = Path(path).read_text(encoding="utf-8").splitlines()
-    except OSError as e:
-        raise InputError(name, f"cannot read: {e.strerror}") from None
-    except UnicodeDecodeError:
-        raise InputError(name, "not a text file") from None
+    lines = read_text_lines(path)
     for lineno, line in enumerate(lines, 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue

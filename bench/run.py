@@ -1,0 +1,90 @@
+"""make bench: the real pipeline, end to end, on real and simulated logs.
+
+For each log: several runs of ``dynslam process`` as a user runs it (a fresh process, so
+start-up counts); reports the median wall time, data duration ÷ wall time (× real time), the
+median peak RSS, and the median per-scan time of the first vs the last 10% of scans (from
+summary.json). Also ``dynslam --help`` start-up. Writes bench/results.json and prints a table.
+
+    python bench/run.py [--runs 3] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT.parent / "shared" / "datasets" / "carmen"
+CACHE = ROOT / "bench" / "cache"
+DYNSLAM = [sys.executable, "-m", "dynslam_cli"]
+
+
+def logs(quick: bool) -> dict[str, Path]:
+    out = {"mit-csail.clf": DATA / "mit-csail.clf",
+           "csail-robotlaser1.log": DATA / "csail-robotlaser1.log",
+           "freiburg-079-corrected.log.gz": DATA / "radish-corrected" /
+           "freiburg-079-corrected.log.gz"}
+    hour = CACHE / ("hall-5min" if quick else "hall-1h") / "hall.log"
+    if not hour.exists():
+        subprocess.run([*DYNSLAM, "simulate", "hall", "-o", str(hour.parent), "--duration",
+                        "300" if quick else "3600", "--seed", "7", "--force"], check=True,
+                       capture_output=True)
+    out[f"simulated hall, {'5 min' if quick else '1 h'}"] = hour
+    return {k: v for k, v in out.items() if v.exists()}
+
+
+def one_run(log: Path, out: Path) -> dict:
+    start = time.perf_counter()
+    subprocess.run([*DYNSLAM, "process", str(log), "-o", str(out), "--force", "-q"],
+                   check=True, capture_output=True)
+    wall = time.perf_counter() - start
+    summary = json.loads((out / "summary.json").read_text())
+    return {"wall_s": wall, "data_s": summary["data_duration_s"],
+            "rss_mb": summary["peak_rss_mb"], **summary["scan_time_ms"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--quick", action="store_true", help="a 5-minute simulated log")
+    args = ap.parse_args()
+    CACHE.mkdir(parents=True, exist_ok=True)
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, log in logs(args.quick).items():
+            runs = [one_run(log, Path(tmp) / "out") for _ in range(args.runs)]
+            med = {k: statistics.median(r[k] for r in runs if r[k] is not None)
+                   for k in ("wall_s", "rss_mb", "first_10pct_median", "last_10pct_median")}
+            data = runs[0]["data_s"]
+            results[name] = {"runs": runs, "median_wall_s": round(med["wall_s"], 3),
+                             "x_real_time": round(data / med["wall_s"], 1),
+                             "median_peak_rss_mb": med["rss_mb"],
+                             "scan_ms_first_10pct": med["first_10pct_median"],
+                             "scan_ms_last_10pct": med["last_10pct_median"],
+                             "last_over_first": round(med["last_10pct_median"]
+                                                      / med["first_10pct_median"], 2)}
+    helps = []
+    for _ in range(5):
+        start = time.perf_counter()
+        subprocess.run([*DYNSLAM, "--help"], check=True, capture_output=True)
+        helps.append(time.perf_counter() - start)
+    results["dynslam --help"] = {"median_wall_s": round(statistics.median(helps), 3)}
+    (ROOT / "bench" / "results.json").write_text(json.dumps(results, indent=2) + "\n")
+    print(f"{'log':<34} {'wall s':>8} {'× real':>8} {'RSS MB':>8} {'first ms':>9} "
+          f"{'last ms':>8} {'last/first':>10}")
+    for name, r in results.items():
+        if "x_real_time" in r:
+            print(f"{name:<34} {r['median_wall_s']:>8} {r['x_real_time']:>8} "
+                  f"{r['median_peak_rss_mb']:>8} {r['scan_ms_first_10pct']:>9} "
+                  f"{r['scan_ms_last_10pct']:>8} {r['last_over_first']:>10}")
+    print(f"{'dynslam --help':<34} {results['dynslam --help']['median_wall_s']:>8}")
+
+
+if __name__ == "__main__":
+    main()
