@@ -69,13 +69,14 @@ class McapReader:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         counts = summary.statistics.channel_message_counts if summary.statistics else {}
-        types = {}
+        types, channels = {}, {}
         for cid, ch in summary.channels.items():
             schema = summary.schemas[ch.schema_id]
             types[ch.topic] = _normalised(schema.name)
+            channels[ch.topic] = (types[ch.topic], counts.get(cid, 0))
             self.stats.records[f"{ch.topic} ({types[ch.topic]})"] += counts.get(cid, 0)
         name = self.source.name
-        scan_topic, odom_topic = choose_topics(types, self.options, name)
+        scan_topic, odom_topic = choose_topics(channels, self.options, name)
         self.topics = (scan_topic, odom_topic)
         store = get_typestore(Stores.EMPTY)
         for schema in summary.schemas.values():

@@ -80,12 +80,12 @@ def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: 
     raise InputError(source, f"several {kind} topics: {listing}; choose one with {option}")
 
 
-def choose_topics(types: dict[str, str], options: ReaderOptions, source: str
+def choose_topics(channels: dict[str, tuple[str, int]], options: ReaderOptions, source: str
                   ) -> tuple[str, str | None]:
-    """(scan topic, odometry topic or None) from {topic: message type}, by the options."""
+    """(scan topic, odometry topic or None) from {topic: (message type, message count)}."""
     first = options.first_topic
-    scans = {t: 0 for t, m in types.items() if m == SCAN_TYPE}
-    odoms = {t: 0 for t, m in types.items() if m == ODOM_TYPE}
+    scans = {t: n for t, (m, n) in channels.items() if m == SCAN_TYPE}
+    odoms = {t: n for t, (m, n) in channels.items() if m == ODOM_TYPE}
     scan = choose_topic("LaserScan", "--topic", scans, options.topic, source, True, first)
     odom = choose_topic("Odometry", "--odom-topic", odoms, options.odom_topic, source, False,
                         first)
@@ -201,8 +201,8 @@ class RosbagsReader:
         for c in conns:
             self.stats.records[f"{c.topic} ({c.msgtype})"] += c.msgcount
         name = self.source.name
-        scan_topic, odom_topic = choose_topics({c.topic: c.msgtype for c in conns},
-                                               self.options, name)
+        scan_topic, odom_topic = choose_topics(
+            {c.topic: (c.msgtype, c.msgcount) for c in conns}, self.options, name)
         self.topics = (scan_topic, odom_topic)
         handler = RosMessages(self.stats, scan_topic, odom_topic)
         wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
