@@ -113,7 +113,7 @@ def icp(ref: np.ndarray, ref_normals: np.ndarray, tree: cKDTree, pts: np.ndarray
             return guess, 0.0, math.inf
         x, y, th = x + delta[0], y + delta[1], th + delta[2]
         rms = float(np.sqrt(np.mean(resid ** 2)))
-        if abs(delta[0]) + abs(delta[1]) < 1e-4 and abs(delta[2]) < 1e-5:
+        if abs(delta[0]) + abs(delta[1]) < 5e-4 and abs(delta[2]) < 1e-4:
             break
     return Pose2D(x, y, math.remainder(th, 2 * math.pi)), share, rms
 
