@@ -84,6 +84,9 @@ class DynamicSlam:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
+        self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
+                                                                      self._table_2)
+                                      if t is not None)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
         self._last_odom: Pose2D | None = None
@@ -159,7 +162,10 @@ class DynamicSlam:
             return (np.zeros(len(obs.free), np.int8), np.zeros(len(obs.hit), np.int8))
         m = self.config.map
         s = self.grids.layers["static"].reshape(-1)
-        free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
+        if self._free_rows_uniform:  # Tables 1 and 2 give "low" whatever S^{t-1} was
+            free_prev = np.zeros(len(obs.free), np.int8)
+        else:
+            free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
         offsets = neighbourhood_offsets(self._radius, self.grids.shape[1])
         hit_prev = classify_neighbourhood(s, obs.hit, offsets, m.free_threshold,
                                           m.occupied_threshold)
@@ -208,8 +214,11 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
     """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped.
     Written by assignment, so a cell listed twice is updated once."""
     flat = layer.reshape(-1)
-    flat[obs.free] = np.clip(flat[obs.free] + table[free_prev, 0], model.clamp_min,
-                             model.clamp_max)
+    if model.low <= model.clamp_min - model.clamp_max and np.all(table[:, 0] == model.low):
+        flat[obs.free] = model.clamp_min  # one "low" clamps any cell: no need to read it
+    else:
+        flat[obs.free] = np.clip(flat[obs.free] + table[free_prev, 0], model.clamp_min,
+                                 model.clamp_max)
     flat[obs.hit] = np.clip(flat[obs.hit] + table[hit_prev, 1], model.clamp_min,
                             model.clamp_max)
 
