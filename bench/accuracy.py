@@ -1,4 +1,5 @@
-"""Accuracy table: every built-in world, true vs drifting odometry, S/D vs ordinary grid.
+"""Accuracy table: every built-in world, true vs drifting odometry; the full method (S/D),
+the ordinary grid (--no-dynamic) and odometry-only localization (--localization odometry).
 
 Runs the real chain (simulate → Carmen log → reader → pipeline), takes map snapshots at every
 relocation (paper Table 4, event by event) and scores with dynslam_cli.evaluate. Prints a
@@ -35,6 +36,7 @@ from formats.truth import write_carmen, write_truth  # noqa: E402
 MODES = {
     "S/D": lambda c: c,
     "ordinary": lambda c: replace(c, dynamic=replace(c.dynamic, enabled=False)),
+    "odometry": lambda c: replace(c, ekf=replace(c.ekf, localization="odometry")),
 }
 
 

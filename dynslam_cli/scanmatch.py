@@ -44,9 +44,6 @@ class MatchConfig:
     min_inliers: float = 0.5
     """Share of points that must pair up for the match to count."""
     max_rms_m: float = 0.08
-    max_disagreement_sigma: float = 4.0
-    """A match further than this many standard deviations of the wheel odometry's own
-    noise from it is not believed (moving people, symmetric places)."""
     key_distance_m: float = 1.0
     key_angle_deg: float = 20.0
 
@@ -113,7 +110,7 @@ def icp(ref: np.ndarray, ref_normals: np.ndarray, tree: cKDTree, pts: np.ndarray
             return guess, 0.0, math.inf
         x, y, th = x + delta[0], y + delta[1], th + delta[2]
         rms = float(np.sqrt(np.mean(resid ** 2)))
-        if abs(delta[0]) + abs(delta[1]) < 5e-4 and abs(delta[2]) < 1e-4:
+        if abs(delta[0]) + abs(delta[1]) < 1e-4 and abs(delta[2]) < 1e-5:
             break
     return Pose2D(x, y, math.remainder(th, 2 * math.pi)), share, rms
 
@@ -149,10 +146,7 @@ class ScanMatcher:
         else:
             sigma = NO_ODOMETRY_SIGMA
         pose, share, rms = icp(ref, normals, tree, pts, guess, cfg, sigma)
-        off = np.array([pose.x - guess.x, pose.y - guess.y,
-                        math.remainder(pose.theta - guess.theta, 2 * math.pi)]) / sigma
-        good = (share >= cfg.min_inliers and rms <= cfg.max_rms_m and len(pts) >= 20
-                and float(np.abs(off).max()) <= cfg.max_disagreement_sigma)
+        good = share >= cfg.min_inliers and rms <= cfg.max_rms_m and len(pts) >= 20
         if good:
             self.matched += 1
         else:
