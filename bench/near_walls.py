@@ -17,18 +17,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from dynslam_cli.config import Config  # noqa: E402
-from dynslam_cli.evaluate import MapThresholds, score_events, snapshots_at  # noqa: E402
-from dynslam_cli.localization import EkfConfig  # noqa: E402
-from dynslam_cli.simulate import (  # noqa: E402
+from dynslam_cli.config import Config
+from dynslam_cli.evaluate import MapThresholds, score_events, snapshots_at
+from dynslam_cli.localization import EkfConfig
+from dynslam_cli.simulate import (
     Box,
     LaserModel,
     OdometryNoise,
     build_world,
     simulate,
 )
-from formats import ReaderOptions, open_log  # noqa: E402
-from formats.truth import write_carmen, write_truth  # noqa: E402
+from formats import ReaderOptions, open_log
+from formats.truth import write_carmen, write_truth
 
 HALF = 0.3
 
