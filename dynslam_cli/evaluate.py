@@ -144,13 +144,12 @@ def _known_free_before(truth: dict[str, Any], place: list[float], arrived: float
                             for o in truth["objects"].values() if o["kind"] == "box")
     if occupied_at_start and not vacated:
         return False
-    max_range, fov, beams = _view(truth)
-    return _place_seen_empty(truth, place, max(vacated, default=0.0), arrived, max_range, fov,
-                             beams)
+    max_range, fov = _view(truth)
+    return _place_seen_empty(truth, place, max(vacated, default=0.0), arrived, max_range, fov)
 
 
 def _place_seen_empty(truth: dict[str, Any], center: list[float], since: float, until: float,
-                      max_range: float, fov: float, beams: int) -> bool:
+                      max_range: float, fov: float) -> bool:
     """Did a beam of a scan in [since, until) pass over the place's centre unobstructed by
     walls? (Ray-casting from the true poses against the static walls.)"""
     walls = np.asarray(truth["walls"], dtype=float)
@@ -271,10 +270,10 @@ def _footprint(grid: OccupancyMap, center: list[float], size: list[float],
     return rr[keep], cc[keep]
 
 
-def _view(truth: dict[str, Any]) -> tuple[float, float, int]:
+def _view(truth: dict[str, Any]) -> tuple[float, float]:
+    """(max range m, field of view rad) of the simulated laser."""
     laser = truth.get("laser", {})
-    return (float(laser.get("max_range_m", 8.0)), math.radians(float(laser.get("fov_deg", 180.0))),
-            int(laser.get("beams", 181)))
+    return float(laser.get("max_range_m", 8.0)), math.radians(float(laser.get("fov_deg", 180.0)))
 
 
 def _detected(static: OccupancyMap, dynamic: OccupancyMap, place: list[float],
@@ -318,7 +317,7 @@ def _score_moves(static: OccupancyMap, dynamic: OccupancyMap, truth: dict[str, A
     there afterwards, must be occupied in D and not in S; every place a box left, that the
     robot then saw empty and where no box stands at the end, must not be occupied in S."""
     walls = np.asarray(truth["walls"], dtype=float)
-    max_range, fov, beams = _view(truth)
+    max_range, fov = _view(truth)
     end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
     finals = [o["positions"][-1][1] for o in truth["objects"].values() if o["kind"] == "box"]
     detected, cleared = [], []
@@ -332,8 +331,7 @@ def _score_moves(static: OccupancyMap, dynamic: OccupancyMap, truth: dict[str, A
         if any(np.allclose(place, c) for c in finals):
             continue
         back = [t for t, c in obj["positions"][i + 1:] if np.allclose(c, place)]
-        if _place_seen_empty(truth, place, left, back[0] if back else end, max_range, fov,
-                             beams):
+        if _place_seen_empty(truth, place, left, back[0] if back else end, max_range, fov):
             cleared.append(_cleared(static, place, obj["size"], walls, th))
     moved, vacated = _tally(detected), _tally(cleared)
     vacated = {"cleared": vacated.pop("detected"), **vacated}
@@ -351,7 +349,7 @@ def score_events(snapshots: list[tuple[float, OccupancyMap, OccupancyMap]],
     *cleared* if S is not occupied there in the snapshot before a box came back (or the end).
     """
     walls = np.asarray(truth["walls"], dtype=float)
-    max_range, fov, beams = _view(truth)
+    max_range, fov = _view(truth)
     times = np.array([t for t, _, _ in snapshots])
     tol = max(tolerance_m, snapshots[0][1].resolution)
 
@@ -375,8 +373,7 @@ def score_events(snapshots: list[tuple[float, OccupancyMap, OccupancyMap]],
         others = [t for o in truth["objects"].values() if o["kind"] == "box"
                   for t, c in o["positions"] if t > left and np.allclose(c, place)]
         until = min(later + others) if later or others else times[-1] + 1.0
-        if left <= times[-1] and _place_seen_empty(truth, place, left, until, max_range, fov,
-                                                   beams):
+        if left <= times[-1] and _place_seen_empty(truth, place, left, until, max_range, fov):
             s, _ = at(until)
             cleared.append(_cleared(s, place, obj["size"], walls, thresholds))
     moved = _tally(detected)

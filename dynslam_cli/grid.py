@@ -98,10 +98,23 @@ class GridStack:
 
     def flat_index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Flat cell indices of world points (which must lie inside the grid)."""
-        r = self.resolution
-        col = np.floor(x / r).astype(np.int64) - self.origin_col
-        row = np.floor(y / r).astype(np.int64) - self.origin_row
+        row, col = self._row_col(x, y)
         return row * self.shape[1] + col
+
+    def flat_index_inside(self, x: np.ndarray, y: np.ndarray, margin_cells: int = 0
+                          ) -> tuple[np.ndarray, np.ndarray]:
+        """(flat indices of the points at least ``margin_cells`` inside the grid, mask of
+        those points)."""
+        row, col = self._row_col(x, y)
+        rows, cols = self.shape
+        k = margin_cells
+        inside = (row >= k) & (row < rows - k) & (col >= k) & (col < cols - k)
+        return row[inside] * cols + col[inside], inside
+
+    def _row_col(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = self.resolution
+        return (np.floor(y / r).astype(np.int64) - self.origin_row,
+                np.floor(x / r).astype(np.int64) - self.origin_col)
 
     def observe(self, sensor: Pose2D, ranges: np.ndarray, angles: np.ndarray,
                 max_range: float, min_range: float, clear_cap: float) -> Observation:

@@ -104,10 +104,11 @@ class CornerSlam:
         return [(to_range_bearing(c, scan.laser), c.convex) for c in corners]
 
     def associate(self, observations: list[tuple[np.ndarray, bool]]
-                  ) -> tuple[list[tuple[int, np.ndarray]], list[int]]:
+                  ) -> tuple[list[tuple[int, np.ndarray]], set[int]]:
         """Nearest neighbour by Mahalanobis distance within the gate, same convex/concave
         flag, each landmark used once. Returns (landmark index, z) pairs and the indices of
-        observations that matched nothing but lie near a landmark (ambiguous: not new)."""
+        observations that are not new landmarks: matched ones, and unmatched ones lying near
+        a landmark (ambiguous)."""
         ekf, cfg = self.ekf, self.config
         pose = ekf.x[:3]
         lms = ekf.x[3:].reshape(-1, 2)
@@ -139,9 +140,7 @@ class CornerSlam:
             used_obs.add(k)
             used_lm.add(i)
             pairs.append((i, observations[k][0]))
-        unmatched_near = [k for k in near_something if k not in used_obs]
-        self._matched = used_obs
-        return pairs, unmatched_near
+        return pairs, used_obs | set(near_something)
 
     def classify(self, states: np.ndarray) -> None:
         """Table 3 for every landmark, from the S^{t-1} state at its place."""
@@ -160,13 +159,15 @@ class CornerSlam:
                 used += 1
         return used
 
-    def add_new(self, observations: list[tuple[np.ndarray, bool]], skip: set[int]) -> None:
-        """Tentative stage: unmatched corners become landmarks once confirmed."""
+    def add_new(self, observations: list[tuple[np.ndarray, bool]], not_new: set[int]
+                ) -> None:
+        """Tentative stage: corners that are not landmarks yet (all but ``not_new``) become
+        landmarks once confirmed."""
         cfg, pose = self.config, self.ekf.x[:3]
         self.candidates = [c for c in self.candidates
                            if self.scan_index - c.last_seen <= cfg.candidate_expiry_scans]
         for k, (z, convex) in enumerate(observations):
-            if k in self._matched or k in skip:
+            if k in not_new:
                 continue
             a = pose[2] + z[1]
             x, y = pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a)

@@ -114,10 +114,10 @@ class DynamicSlam:
         slam = self._slam
         slam.predict(increment, matched, scan.has_odometry)
         observations = slam.detect(scan)
-        pairs, ambiguous = slam.associate(observations)
+        pairs, not_new = slam.associate(observations)
         slam.classify(self.classify_landmarks(slam.landmark_positions()))
         slam.correct(pairs)
-        slam.add_new(observations, set(ambiguous))
+        slam.add_new(observations, not_new)
         slam.prune()
         slam.scan_index += 1
         return slam.pose
@@ -135,16 +135,10 @@ class DynamicSlam:
         if self._table_2 is None or len(positions) == 0:
             return np.full(len(positions), OCCUPIED, np.int8)
         g, m = self.grids, self.config.map
-        r = m.resolution_m
-        rows, cols = g.shape
-        row = np.floor(positions[:, 1] / r).astype(np.int64) - g.origin_row
-        col = np.floor(positions[:, 0] / r).astype(np.int64) - g.origin_col
-        k = self._radius
-        inside = (row >= k) & (row < rows - k) & (col >= k) & (col < cols - k)
+        cells, inside = g.flat_index_inside(positions[:, 0], positions[:, 1], self._radius)
         states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
-        cells = row[inside] * cols + col[inside]
         states[inside] = classify_neighbourhood(
-            g.layers["static"].reshape(-1), cells, neighbourhood_offsets(k, cols),
+            g.layers["static"].reshape(-1), cells, neighbourhood_offsets(self._radius, g.shape[1]),
             m.free_threshold, m.occupied_threshold)
         return states
 

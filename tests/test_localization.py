@@ -88,9 +88,9 @@ def test_association_nearest_within_gate_and_same_kind():
     obs = [(np.array([2.02, 0.01]), True)]
     pairs, _ = slam.associate(obs)
     assert [i for i, _ in pairs] == [0]
-    pairs, ambiguous = slam.associate([(np.array([2.02, 0.01]), False)])  # concave: no
-    assert pairs == [] and ambiguous == [0]
-    pairs, ambiguous = slam.associate([(np.array([2.0, 0.6]), True)])  # far outside gate
+    pairs, not_new = slam.associate([(np.array([2.02, 0.01]), False)])  # concave: no
+    assert pairs == [] and not_new == {0}  # near a landmark: ambiguous, not a new one
+    pairs, _ = slam.associate([(np.array([2.0, 0.6]), True)])  # far outside gate
     assert pairs == []
 
 
