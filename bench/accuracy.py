@@ -31,7 +31,8 @@ from dynslam_cli.simulate import (  # noqa: E402
     simulate,
 )
 from formats import ReaderOptions, open_log  # noqa: E402
-from formats.truth import write_carmen, write_truth  # noqa: E402
+from formats.simlogs import write_carmen  # noqa: E402
+from formats.truth import write_truth  # noqa: E402
 
 MODES = {
     "S/D": lambda c: c,

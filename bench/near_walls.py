@@ -28,7 +28,8 @@ from dynslam_cli.simulate import (
     simulate,
 )
 from formats import ReaderOptions, open_log
-from formats.truth import write_carmen, write_truth
+from formats.simlogs import write_carmen
+from formats.truth import write_truth
 
 HALF = 0.3
 

@@ -359,7 +359,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         from dynslam_cli.simulate import simulate as run_simulation
         from formats.outdir import atomic_output_dir
         from formats.simlogs import write_simulated
-        from formats.truth import write_carmen, write_truth
+        from formats.truth import write_truth
 
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
         noise = OdometryNoise().scaled(odometry_noise)
@@ -367,11 +367,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
                                       laser, noise)
         name = f"{world}{LOG_NAMES[log_format]}"
         with atomic_output_dir(output, force) as tmp:
-            if log_format == "carmen":
-                with open(tmp / name, "w", encoding="utf-8", newline="\n") as f:
-                    n = write_carmen(f, steps, laser, record, world)
-            else:
-                n = write_simulated(log_format, tmp / name, steps, laser)
+            n = write_simulated(log_format, tmp / name, steps, laser, record, world)
             write_truth(tmp / "truth.json", truth)
         click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations → {output}", err=True)
         click.echo(str(output / name))

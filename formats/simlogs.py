@@ -1,5 +1,5 @@
 """Writing a simulated run in every format dynslam reads, so every reader is tested against
-the same world: Carmen (see :mod:`formats.truth`), Player 0.3.0 text, ROS1 bag, ROS2 bag
+the same world: Carmen (FLASER or ROBOTLASER1 with ODOM), Player 0.3.0 text, ROS1 bag, ROS2 bag
 (sqlite3 or mcap storage) and a plain MCAP file of ROS1 messages.
 
 ROS outputs carry ``/scan`` (sensor_msgs/LaserScan, frame ``laser``, no return = +inf per
@@ -11,13 +11,35 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
 from dynslam_cli.simulate import LaserModel, SimStep
+from formats.carmen import format_flaser, format_odom, format_param, format_robotlaser1
 
 EPOCH_S = 1_700_000_000  # simulated time 0 as a plausible ROS time
+
+
+def write_carmen(out: TextIO, steps: Iterable[SimStep], laser: LaserModel, record: str,
+                 world: str) -> int:
+    """Write the simulated steps as a Carmen log; returns the number of scans."""
+    fov = math.radians(laser.fov_deg)
+    step = fov / max(laser.beams - 1, 1)
+    out.write("# CARMEN Logfile\n# written by dynslam simulate, world " + world + "\n")
+    out.write(format_param("laser_front_laser_fov", f"{laser.fov_deg:g}"))
+    out.write(format_param("laser_front_laser_resolution", f"{math.degrees(step):.9g}"))
+    out.write(format_param("laser_front_laser_max_range", f"{laser.max_range_m:g}"))
+    n = 0
+    for s in steps:
+        out.write(format_odom(s.stamp, s.odom))
+        if record == "flaser":
+            out.write(format_flaser(s.stamp, s.ranges, s.odom))
+        else:
+            out.write(format_robotlaser1(s.stamp, s.ranges, -fov / 2, step, laser.max_range_m,
+                                         s.odom))
+        n += 1
+    return n
 
 
 def write_player(path: Path, steps: Iterable[SimStep], laser: LaserModel) -> int:
@@ -130,8 +152,13 @@ def write_mcap_ros1(path: Path, steps: Iterable[SimStep], laser: LaserModel) -> 
     return n
 
 
-def write_simulated(fmt: str, path: Path, steps: Iterable[SimStep], laser: LaserModel) -> int:
-    """Write ``steps`` in format ``fmt`` (player, rosbag1, rosbag2, rosbag2-mcap, mcap)."""
+def write_simulated(fmt: str, path: Path, steps: Iterable[SimStep], laser: LaserModel,
+                    record: str = "flaser", world: str = "") -> int:
+    """Write ``steps`` in format ``fmt`` (carmen with ``record`` flaser|robotlaser1, player,
+    rosbag1, rosbag2, rosbag2-mcap, mcap); returns the number of scans."""
+    if fmt == "carmen":
+        with open(path, "w", encoding="utf-8", newline="\n") as f:
+            return write_carmen(f, steps, laser, record, world)
     if fmt == "player":
         return write_player(path, steps, laser)
     if fmt == "rosbag1":

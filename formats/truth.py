@@ -1,40 +1,14 @@
-"""``truth.json`` of a simulated run, and writing a simulated run as a log."""
+"""``truth.json`` of a simulated run: written by ``dynslam simulate``, read by ``evaluate``."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
-from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.simulate import LaserModel, SimStep, Truth
-from formats.carmen import format_flaser, format_odom, format_param, format_robotlaser1
-
-RECORDS = ("flaser", "robotlaser1")
-
-
-def write_carmen(out: TextIO, steps: Iterable[SimStep], laser: LaserModel, record: str,
-                 world: str) -> int:
-    """Write the simulated steps as a Carmen log; returns the number of scans."""
-    fov = math.radians(laser.fov_deg)
-    step = fov / max(laser.beams - 1, 1)
-    out.write("# CARMEN Logfile\n# written by dynslam simulate, world " + world + "\n")
-    out.write(format_param("laser_front_laser_fov", f"{laser.fov_deg:g}"))
-    out.write(format_param("laser_front_laser_resolution", f"{math.degrees(step):.9g}"))
-    out.write(format_param("laser_front_laser_max_range", f"{laser.max_range_m:g}"))
-    n = 0
-    for s in steps:
-        out.write(format_odom(s.stamp, s.odom))
-        if record == "flaser":
-            out.write(format_flaser(s.stamp, s.ranges, s.odom))
-        else:
-            out.write(format_robotlaser1(s.stamp, s.ranges, -fov / 2, step, laser.max_range_m,
-                                         s.odom))
-        n += 1
-    return n
+from dynslam_cli.simulate import Truth
 
 
 def _rounded(rows: list[tuple[float, ...]], digits: int = 5) -> list[list[float]]:

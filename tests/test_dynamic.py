@@ -114,7 +114,8 @@ def test_no_dynamic_is_an_ordinary_grid():
 def _simulated(world: str, tmp_path, noise: float, duration: float = 600.0, rate: float = 10.0):
     from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world, simulate
     from formats import ReaderOptions, open_log
-    from formats.truth import write_carmen, write_truth
+    from formats.simlogs import write_carmen
+    from formats.truth import write_truth
 
     steps, truth = simulate(build_world(world), duration, rate, 0,
                             noise=OdometryNoise().scaled(noise))

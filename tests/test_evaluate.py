@@ -92,7 +92,7 @@ def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
     from dynslam_cli.pipeline import run
     from dynslam_cli.simulate import LaserModel
     from formats import ReaderOptions, open_log
-    from formats.truth import write_carmen
+    from formats.simlogs import write_carmen
 
     steps, truth_obj = simulate(build_world("arena"), 400, 5.0, 0)
     log = tmp_path / "arena.log"
