@@ -26,6 +26,7 @@ from typing import Any
 from dynslam_cli.corners import CornerConfig
 from dynslam_cli.errors import ConfigError
 from dynslam_cli.localization import EkfConfig
+from dynslam_cli.loopclosure import LoopConfig
 from dynslam_cli.scanmatch import MatchConfig
 
 
@@ -96,6 +97,7 @@ class Config:
     corners: CornerConfig = field(default_factory=CornerConfig)
     ekf: EkfConfig = field(default_factory=EkfConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
 
     def validate(self) -> Config:
         """Check value ranges; returns self so calls chain."""

@@ -46,3 +46,10 @@ def polar_to_xy(pose: Pose2D, ranges: np.ndarray, angles: np.ndarray) -> np.ndar
     """Beam end points (N×2, metres) in the frame that ``pose`` is expressed in."""
     a = angles + pose.theta
     return np.column_stack((pose.x + ranges * np.cos(a), pose.y + ranges * np.sin(a)))
+
+
+def transform_points(pose: Pose2D, points: np.ndarray) -> np.ndarray:
+    """Points (N×2) given in the frame of ``pose``, expressed in its parent frame."""
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    return np.column_stack((pose.x + c * points[:, 0] - s * points[:, 1],
+                            pose.y + s * points[:, 0] + c * points[:, 1]))

@@ -75,6 +75,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                     "cols": int(result.static.prob.shape[1]),
                     "resolution_m": result.static.resolution,
                     "origin": [result.static.origin_x, result.static.origin_y]},
+            "localization": result.localization,
             "config": config.to_dict(),
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
             "wall_time_s": round(time.perf_counter() - start, 3),

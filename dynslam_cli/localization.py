@@ -2,14 +2,17 @@
 association, and Table 3 — a landmark corrects the pose only if its place in S is Occupied.
 
 Landmarks pass a tentative stage first (seen ``confirm_observations`` times close together)
-so that clutter does not fill the state. Per-scan cost is bounded by the size of the state,
-which is bounded by ``max_landmarks``: landmarks seen only a few times and not for a long
-while are dropped first, then the least recently seen.
+so that clutter does not fill the state. Per-scan cost is bounded by the size of the state:
+a landmark not seen for ``active_window_scans`` leaves the filter (the pose graph, not the
+EKF, closes long loops: see dynslam_cli.loopclosure) and the state never holds more than
+``max_landmarks``. Landmarks that leave are kept for the landmark map if they were seen
+``keep_observations`` times; rarer ones were clutter and are forgotten.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,9 +44,11 @@ class EkfConfig:
     """... each within this many scans of the previous one."""
     matched_noise_scale: float = 0.3
     """Motion noise of a scan-matched increment, relative to wheel odometry's."""
-    max_landmarks: int = 600
-    prune_after_scans: int = 600
-    """Landmarks seen fewer than 5 times and not for this many scans are dropped."""
+    max_landmarks: int = 300
+    active_window_scans: int = 150
+    """A landmark not seen for this many scans leaves the filter ..."""
+    keep_observations: int = 5
+    """... and is kept in the landmark map if it was seen at least this often."""
     noise: NoiseModel = field(default_factory=NoiseModel)
 
 
@@ -56,6 +61,19 @@ class LandmarkTrack:
     cls: str = "dynamic"
     observations: int = 1
     last_seen: int = 0
+
+
+@dataclass(frozen=True)
+class LandmarkRecord:
+    """A landmark for the map: EKF-frame position and covariance, and its bookkeeping."""
+
+    id: int
+    x: float
+    y: float
+    convex: bool
+    observations: int
+    last_seen: int
+    cov: np.ndarray
 
 
 @dataclass
@@ -82,6 +100,7 @@ class CornerSlam:
         self.ekf = Ekf(np.array([start.x, start.y, start.theta]), config.noise)
         self.tracks: list[LandmarkTrack] = []
         self.candidates: list[Candidate] = []
+        self.retired: list[LandmarkRecord] = []
         self.scan_index = 0
         self._next_id = 0
 
@@ -189,18 +208,37 @@ class CornerSlam:
                 self._next_id += 1
 
     def prune(self) -> None:
-        """Keep the state bounded: drop stale clutter, then the least recently seen."""
+        """Keep the state bounded: landmarks out of sight for ``active_window_scans`` leave
+        the filter, then the least recently seen while there are too many."""
         cfg = self.config
         drop = [i for i, t in enumerate(self.tracks)
-                if t.observations < 5 and self.scan_index - t.last_seen > cfg.prune_after_scans]
+                if self.scan_index - t.last_seen > cfg.active_window_scans]
         excess = len(self.tracks) - len(drop) - cfg.max_landmarks
         if excess > 0:
             rest = sorted((t.last_seen, i) for i, t in enumerate(self.tracks) if i not in drop)
             drop += [i for _, i in rest[:excess]]
-        if drop:
-            self.ekf.remove_landmarks(sorted(drop))
-            gone = set(drop)
-            self.tracks = [t for i, t in enumerate(self.tracks) if i not in gone]
+        if not drop:
+            return
+        drop.sort()
+        self.retired += [r for r in self._records(drop)
+                         if r.observations >= cfg.keep_observations]
+        self.ekf.remove_landmarks(drop)
+        gone = set(drop)
+        self.tracks = [t for i, t in enumerate(self.tracks) if i not in gone]
+
+    def landmark_records(self) -> list[LandmarkRecord]:
+        """Every landmark for the map: those that left the filter, then those in it."""
+        return self.retired + self._records(range(len(self.tracks)))
+
+    def _records(self, indices: Iterable[int]) -> list[LandmarkRecord]:
+        xy = self.landmark_positions()
+        out = []
+        for i in indices:
+            t, j = self.tracks[i], 3 + 2 * i
+            out.append(LandmarkRecord(t.id, float(xy[i, 0]), float(xy[i, 1]), t.convex,
+                                      t.observations, t.last_seen,
+                                      self.ekf.cov[j:j + 2, j:j + 2].copy()))
+        return out
 
     def landmark_positions(self) -> np.ndarray:
         return self.ekf.x[3:].reshape(-1, 2)

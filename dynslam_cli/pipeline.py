@@ -13,6 +13,7 @@ counts as static.
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ from dynslam_cli.dynamic import (
     OCCUPIED,
     TABLE_1,
     TABLE_2,
+    TABLE_3,
     UNKNOWN,
     InverseModel,
     classify_neighbourhood,
@@ -31,10 +33,11 @@ from dynslam_cli.dynamic import (
     neighbourhood_offsets,
     radius_cells,
 )
-from dynslam_cli.geometry import compose, relative
+from dynslam_cli.geometry import compose, inverse, relative, transform_points, wrap_angles
 from dynslam_cli.grid import GridStack, Observation, OccupancyMap
 from dynslam_cli.localization import CornerSlam
-from dynslam_cli.scanmatch import ScanMatcher
+from dynslam_cli.loopclosure import LoopCloser
+from dynslam_cli.scanmatch import ScanMatcher, scan_points
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -61,10 +64,13 @@ class SlamResult:
     dynamic: OccupancyMap
     trajectory: np.ndarray  # N×4: stamp (s), x (m), y (m), theta (rad)
     landmarks: list[Landmark] = field(default_factory=list)
+    localization: dict[str, int] = field(default_factory=dict)
+    """Counts for the summary: scan matches, fallbacks, graph nodes, loop closures."""
 
 
-class DynamicSlam:
-    """One run of the algorithm; feed it scans in log order with :meth:`step`."""
+class DynamicMapper:
+    """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
+    and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
 
     def __init__(self, config: Config) -> None:
         self.config = config
@@ -87,47 +93,13 @@ class DynamicSlam:
         self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
                                                                       self._table_2)
                                       if t is not None)
-        self._trajectory = array("d")
-        self._slam: CornerSlam | None = None
-        self._last_odom: Pose2D | None = None
-        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
-                         else None)
 
-    def step(self, scan: Scan) -> Pose2D:
-        """Process one scan; returns the robot's pose in the map frame."""
-        pose = self.localize(scan)
+    def integrate(self, pose: Pose2D, scan: Scan) -> None:
+        """One scan from the robot's pose ``pose`` (map frame)."""
         observation = self.observe(pose, scan)
         free_prev, hit_prev = self.classify_against_static_map(observation)
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
-        self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))
-        return pose
-
-    def localize(self, scan: Scan) -> Pose2D:
-        """Robot pose at the scan in the map frame (= the first scan's odometry frame)."""
-        if self.config.ekf.localization == "odometry":
-            return scan.odom
-        increment, matched = self.motion_since_last_scan(scan)
-        if self._slam is None:
-            self._slam = CornerSlam(scan.odom, self.config.ekf, self.config.corners)
-            return scan.odom
-        slam = self._slam
-        slam.predict(increment, matched, scan.has_odometry)
-        observations = slam.detect(scan)
-        pairs, not_new = slam.associate(observations)
-        slam.classify(self.classify_landmarks(slam.landmark_positions()))
-        slam.correct(pairs)
-        slam.add_new(observations, not_new)
-        slam.prune()
-        slam.scan_index += 1
-        return slam.pose
-
-    def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
-        """The control input: scan-matched motion where the match is good, else odometry."""
-        if self._matcher is not None:
-            return self._matcher.increment(scan)
-        last, self._last_odom = self._last_odom, scan.odom
-        return (relative(last, scan.odom) if last is not None else Pose2D()), False
 
     def classify_landmarks(self, positions: np.ndarray) -> np.ndarray:
         """State of S^{t-1} around each landmark (neighbourhood rule), for Table 3. Without
@@ -178,28 +150,196 @@ class DynamicSlam:
             _apply_inverse_model(self.grids.layers["dynamic"], obs, free_prev, hit_prev,
                                  self._table_2, self._dynamic)
 
+
+class ScanStore:
+    """The scans of the run, kept compactly (ranges as float32, shared beam angles) so the
+    maps can be rebuilt from the optimized trajectory at the end."""
+
+    def __init__(self) -> None:
+        self._scans: list[tuple[float, np.ndarray, np.ndarray, float, Pose2D]] = []
+        self._angles: dict[tuple[int, float, float], np.ndarray] = {}
+
+    def add(self, scan: Scan) -> None:
+        a = scan.angles
+        key = (len(a), float(a[0]), float(a[-1])) if len(a) else (0, 0.0, 0.0)
+        angles = self._angles.setdefault(key, a)
+        self._scans.append((scan.stamp, scan.ranges.astype(np.float32), angles,
+                            scan.max_range, scan.laser))
+
+    def __len__(self) -> int:
+        return len(self._scans)
+
+    def scans(self) -> Iterable[Scan]:
+        for stamp, ranges, angles, max_range, laser in self._scans:
+            yield Scan(stamp, ranges.astype(np.float64), angles, max_range, Pose2D(), laser)
+
+
+class DynamicSlam:
+    """One run of the algorithm; feed it scans in log order with :meth:`step`."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.mapper = DynamicMapper(config)
+        self._trajectory = array("d")
+        self._slam: CornerSlam | None = None
+        self._last_odom: Pose2D | None = None
+        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
+                         else None)
+        use_graph = config.loop.enabled and config.ekf.localization == "ekf"
+        self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
+        self._store = ScanStore() if use_graph else None
+        self._nodes = array("i")  # per scan: its graph node ...
+        self._offsets = array("d")  # ... and its pose in that node's EKF frame
+        self._count = 0
+
+    @property
+    def grids(self) -> GridStack:
+        """The grids as mapped so far (with the pose estimates of their time)."""
+        return self.mapper.grids
+
+    def step(self, scan: Scan) -> Pose2D:
+        """Process one scan; returns the robot's pose in the map frame."""
+        pose = self.localize(scan)
+        self.mapper.integrate(pose, scan)
+        self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))
+        if self._store is not None:
+            self._store.add(scan)
+        self._count += 1
+        return pose
+
+    def localize(self, scan: Scan) -> Pose2D:
+        """Robot pose at the scan in the map frame (= the first scan's odometry frame):
+        EKF-SLAM over corners, then the pose graph's correction of its drift."""
+        if self.config.ekf.localization == "odometry":
+            return scan.odom
+        local = self.track_with_ekf(scan)
+        return self.close_loops(local, scan)
+
+    def track_with_ekf(self, scan: Scan) -> Pose2D:
+        """Sec. 4: predict from the (scan-matched) motion, detect corners, associate,
+        classify landmarks by S^{t-1} (Table 3), correct with the static ones."""
+        increment, matched = self.motion_since_last_scan(scan)
+        if self._slam is None:
+            self._slam = CornerSlam(scan.odom, self.config.ekf, self.config.corners)
+            return scan.odom
+        slam = self._slam
+        slam.scan_index = self._count
+        slam.predict(increment, matched, scan.has_odometry)
+        observations = slam.detect(scan)
+        pairs, not_new = slam.associate(observations)
+        slam.classify(self.mapper.classify_landmarks(self.to_map(slam.landmark_positions())))
+        slam.correct(pairs)
+        slam.add_new(observations, not_new)
+        slam.prune()
+        return slam.pose
+
+    def close_loops(self, local: Pose2D, scan: Scan) -> Pose2D:
+        """A graph node every so often, a loop closure where the robot is back in a known
+        place; returns the scan's pose with the graph's correction."""
+        loops = self._loops
+        if loops is None:
+            return local
+        if loops.wants_node(local):
+            loops.add_node(local, scan_points(scan, self.config.match.max_range_m,
+                                              self.config.match.subsample))
+        node = len(loops.front) - 1
+        offset = relative(loops.front[node], local)
+        self._nodes.append(node)
+        self._offsets.extend((offset.x, offset.y, offset.theta))
+        return compose(loops.pose(node), offset)
+
+    def to_map(self, points: np.ndarray) -> np.ndarray:
+        """EKF-frame positions (N×2) into the map frame by the current graph correction."""
+        if self._loops is None or not self._loops.front or len(points) == 0:
+            return points
+        k = len(self._loops.front) - 1
+        return transform_points(compose(self._loops.pose(k), inverse(self._loops.front[k])),
+                                points)
+
+    def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
+        """The control input: scan-matched motion where the match is good, else odometry."""
+        if self._matcher is not None:
+            return self._matcher.increment(scan)
+        last, self._last_odom = self._last_odom, scan.odom
+        return (relative(last, scan.odom) if last is not None else Pose2D()), False
+
+    def current(self) -> SlamResult:
+        """The state so far, as mapped online (for snapshots)."""
+        trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
+        return self._result(self.mapper, trajectory)
+
     def result(self) -> SlamResult:
+        """The final result: with the pose graph, the maps are rebuilt from the optimized
+        trajectory, so places seen before and after a loop closure agree."""
+        trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
+        if self._loops is None or self._store is None or not len(self._store):
+            return self._result(self.mapper, trajectory)
+        trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
+        mapper = DynamicMapper(self.config)
+        for (_, x, y, th), scan in zip(trajectory, self._store.scans(), strict=True):
+            mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)
+        return self._result(mapper, trajectory)
+
+    def optimized_poses(self) -> np.ndarray:
+        """Every scan's pose (N×3) from its node's optimized pose and its EKF offset."""
+        node = np.asarray(self._nodes, dtype=np.int64)
+        off = np.asarray(self._offsets, dtype=np.float64).reshape(-1, 3)
+        base = self._loops.graph.poses[node] if self._loops is not None else np.zeros((0, 3))
+        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
+        return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
+                                base[:, 1] + s * off[:, 0] + c * off[:, 1],
+                                wrap_angles(base[:, 2] + off[:, 2])))
+
+    def _result(self, mapper: DynamicMapper, trajectory: np.ndarray) -> SlamResult:
         return SlamResult(
-            static=self.grids.snapshot("static"),
-            dynamic=self.grids.snapshot("dynamic"),
-            trajectory=np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4),
-            landmarks=self.landmarks(),
+            static=mapper.grids.snapshot("static"),
+            dynamic=mapper.grids.snapshot("dynamic"),
+            trajectory=trajectory,
+            landmarks=self.landmarks(mapper),
+            localization=self.counts(),
         )
 
-    def landmarks(self) -> list[Landmark]:
-        """The landmark map, with each landmark's position covariance."""
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        if self._matcher is not None:
+            m = self._matcher
+            out.update(scan_matches=m.matched, scan_match_recoveries=m.recovered,
+                       odometry_fallbacks=m.fallbacks)
+        if self._loops is not None:
+            out.update(graph_nodes=len(self._loops.front),
+                       loop_closure_attempts=self._loops.attempts,
+                       loop_closures=self._loops.closures)
+        return out
+
+    def landmarks(self, mapper: DynamicMapper) -> list[Landmark]:
+        """The landmark map: every landmark the EKF confirmed (those it has let go of
+        included), placed by the graph, classed static or dynamic by Table 3 against the
+        final S, with its position covariance."""
         if self._slam is None:
             return []
-        slam = self._slam
+        records = self._slam.landmark_records()
+        if not records:
+            return []
+        xy = np.array([[r.x, r.y] for r in records])
+        angles = np.zeros(len(records))
+        if self._loops is not None and self._nodes:
+            nodes = np.asarray(self._nodes)[[min(r.last_seen, len(self._nodes) - 1)
+                                              for r in records]]
+            loops = self._loops
+            for k, n in enumerate(nodes):
+                corr = compose(loops.pose(int(n)), inverse(loops.front[int(n)]))
+                p = compose(corr, Pose2D(xy[k, 0], xy[k, 1], 0.0))
+                xy[k] = (p.x, p.y)
+                angles[k] = corr.theta
+        classes = [TABLE_3[int(s)] for s in mapper.classify_landmarks(xy)]
         out = []
-        for i, (track, (x, y)) in enumerate(zip(slam.tracks, slam.landmark_positions(),
-                                                strict=True)):
-            j = 3 + 2 * i
-            c = slam.ekf.cov[j:j + 2, j:j + 2]
-            out.append(Landmark(track.id, float(x), float(y),
-                                "convex" if track.convex else "concave", track.cls,
-                                track.observations, float(c[0, 0]), float(c[0, 1]),
-                                float(c[1, 1])))
+        for r, (x, y), a, cls in zip(records, xy, angles, classes, strict=True):
+            c, s = math.cos(a), math.sin(a)
+            rot = np.array([[c, -s], [s, c]])
+            cov = rot @ r.cov @ rot.T
+            out.append(Landmark(r.id, float(x), float(y), "convex" if r.convex else "concave",
+                                cls, r.observations, float(cov[0, 0]), float(cov[0, 1]),
+                                float(cov[1, 1])))
         return out
 
 

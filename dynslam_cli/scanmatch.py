@@ -26,6 +26,8 @@ RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
 # Motion prior for logs without odometry: stationary, with this standard deviation per scan
 # (x m, y m, θ rad): a still or slowly moving sensor is matched freely within it.
 NO_ODOMETRY_SIGMA = np.array([0.3, 0.3, math.radians(15.0)])
+# When the match from the odometry's guess fails, these turns of that guess are tried too.
+RECOVERY_TURNS_DEG = (-30.0, -20.0, -10.0, 10.0, 20.0, 30.0)
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,12 @@ class MatchConfig:
     min_inliers: float = 0.5
     """Share of points that must pair up for the match to count."""
     max_rms_m: float = 0.08
+    prior_scale: float = 1.0
+    """The odometry prior's standard deviations are the motion noise's times this ..."""
+    prior_floor_m: float = 0.0
+    """... and at least this (translation) ..."""
+    prior_floor_deg: float = 5.0
+    """... and this (rotation): wheel odometry of real robots slips in fast turns."""
     key_distance_m: float = 1.0
     key_angle_deg: float = 20.0
 
@@ -125,8 +133,10 @@ class ScanMatcher:
         self._key_odom = Pose2D()  # wheel odometry at the key scan
         self._pose_in_key = Pose2D()  # matched pose of the last scan in the key frame
         self._last_odom = Pose2D()
+        self._last_increment = Pose2D()
         self.matched = 0
         self.fallbacks = 0
+        self.recovered = 0
 
     def increment(self, scan: Scan) -> tuple[Pose2D, bool]:
         """Motion since the previous scan, in the previous robot frame, and whether it
@@ -143,10 +153,17 @@ class ScanMatcher:
         if scan.has_odometry:
             sigma = np.sqrt(np.diag(motion_noise(np.array([wheel.x, wheel.y, wheel.theta]),
                                                  self.noise)))
+            sigma = np.maximum(sigma * cfg.prior_scale,
+                               [cfg.prior_floor_m, cfg.prior_floor_m,
+                                math.radians(cfg.prior_floor_deg)])
         else:
             sigma = NO_ODOMETRY_SIGMA
         pose, share, rms = icp(ref, normals, tree, pts, guess, cfg, sigma)
-        good = share >= cfg.min_inliers and rms <= cfg.max_rms_m and len(pts) >= 20
+        good = self._good(share, rms, pts)
+        if not good and scan.has_odometry:  # odometry glitches (a doubled turn, a stall)
+            pose, share, rms = self._recover(pts, guess, sigma)
+            good = self._good(share, rms, pts)
+            self.recovered += good
         if good:
             self.matched += 1
         else:
@@ -154,10 +171,31 @@ class ScanMatcher:
             pose = guess
         inc = relative(self._pose_in_key, pose)
         self._pose_in_key = pose
+        self._last_increment = inc
         if (math.hypot(pose.x, pose.y) > cfg.key_distance_m
                 or abs(pose.theta) > math.radians(cfg.key_angle_deg)):
             self._set_key(scan, Pose2D())
         return inc, good
+
+    def _good(self, share: float, rms: float, pts: np.ndarray) -> bool:
+        return share >= self.cfg.min_inliers and rms <= self.cfg.max_rms_m and len(pts) >= 20
+
+    def _recover(self, pts: np.ndarray, guess: Pose2D, sigma: np.ndarray
+                 ) -> tuple[Pose2D, float, float]:
+        """Match again from the constant-velocity guess and from the odometry's guess turned
+        by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best match
+        wins."""
+        assert self._key is not None
+        ref, normals, tree = self._key
+        guesses = [compose(self._pose_in_key, self._last_increment)]
+        guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
+                    for d in RECOVERY_TURNS_DEG]
+        best = (guess, 0.0, math.inf)
+        for g in guesses:
+            pose, share, rms = icp(ref, normals, tree, pts, g, self.cfg, sigma)
+            if self._good(share, rms, pts) and (share, -rms) > (best[1], -best[2]):
+                best = (pose, share, rms)
+        return best
 
     def _set_key(self, scan: Scan, pose: Pose2D) -> None:
         ref = scan_points(scan, self.cfg.max_range_m)

@@ -1,0 +1,354 @@
+"""Loop closure: recognise a place seen long ago and tie the two poses together.
+
+The EKF (Sec. 4) keeps only the landmarks of the last stretch of the run; what drift it
+leaves over a long loop is removed here, the way graph-based SLAM does it. Every key scan
+becomes a node of a :class:`~dynslam_cli.posegraph.PoseGraph`, chained to the previous one by
+the EKF's relative motion. When the robot is near a node it left a long way back (near by
+the current estimate, within a radius that grows with the distance driven since the last
+closure), the scans around the new node are matched against those around the old one:
+
+1. **correlative search** over a window of translations and rotations on a likelihood field
+   of the old scans (a coarse pass on a max-pooled field bounds every fine cell below it,
+   then the best coarse cells are searched finely);
+2. **ICP refinement** (point-to-line); the edge's information comes from the search's
+   ambiguity (the spread of the poses that could score as well), so a match along a
+   featureless corridor constrains only the directions it can see;
+3. an accepted match becomes an edge with a Cauchy kernel (a wrong one is pulled on only
+   softly), and the graph is optimized.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt, maximum_filter
+from scipy.spatial import cKDTree
+
+from dynslam_cli.ekf import motion_noise
+from dynslam_cli.geometry import compose, relative, transform_points
+from dynslam_cli.localization import EkfConfig
+from dynslam_cli.posegraph import PoseGraph
+from dynslam_cli.scanmatch import MatchConfig, icp
+from dynslam_cli.types import Pose2D
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Pose-graph and loop-closure parameters (units in the names)."""
+
+    enabled: bool = True
+    """False: the EKF's estimate is the result (no pose graph)."""
+    node_distance_m: float = 0.5
+    """A new graph node after this much motion ..."""
+    node_angle_deg: float = 15.0
+    """... or this much turning."""
+    min_travel_m: float = 8.0
+    """Only nodes at least this far back along the path are loop candidates."""
+    search_radius_m: float = 1.0
+    """Candidates lie within this radius of the current estimate ..."""
+    drift_per_m: float = 0.05
+    """... plus this share of the distance driven since the last loop closure ..."""
+    max_search_radius_m: float = 6.0
+    """... up to this."""
+    search_angle_deg: float = 10.0
+    """Rotation window of the search (plus 1° per 10 m driven since the last closure)."""
+    max_search_angle_deg: float = 30.0
+    submap_nodes: int = 4
+    """Scans of this many nodes on each side of the old node make the matched submap."""
+    query_nodes: int = 0
+    """The new scan plus this many earlier nodes' scans are matched."""
+    min_score: float = 0.55
+    """Mean likelihood of the matched points (0–1) for a closure."""
+    min_constraint_ratio: float = 0.1
+    """Scans that constrain their position this much less in one direction than in the other
+    (a corridor's two walls) are not matched."""
+    max_ambiguity_m: float = 1.0
+    """A match that could slide farther than this (standard deviation of the equally good
+    offsets, e.g. along a featureless corridor) is not used."""
+    min_inliers: float = 0.65
+    max_rms_m: float = 0.05
+    attempt_every_m: float = 1.0
+    """Try at most once per this much driven (a closure just made needs no repeat)."""
+    chain_noise_scale: float = 1.5
+    """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
+    edge_sigma_m: float = 0.05
+    """Standard deviation of a loop edge's best-constrained direction."""
+
+
+FIELD_RES_M = 0.05
+FIELD_SIGMA_M = 0.08
+COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
+TOP_COARSE = 6
+ANGLE_STEP_DEG = 1.0
+
+
+@dataclass
+class LikelihoodField:
+    """exp(−d²/2σ²) of the distance d to the nearest submap point, on a fine grid, and its
+    max-pooled copy for the coarse pass."""
+
+    fine: np.ndarray
+    coarse: np.ndarray
+    origin: np.ndarray  # map coordinates of cell (0, 0)
+    points: np.ndarray
+    normals: np.ndarray
+    tree: cKDTree
+
+
+def likelihood_field(points: np.ndarray, margin_m: float) -> LikelihoodField:
+    lo = points.min(axis=0) - margin_m
+    hi = points.max(axis=0) + margin_m
+    shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
+    occupied = np.zeros((shape[1], shape[0]), dtype=bool)
+    cells = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(int)
+    occupied[cells[:, 1], cells[:, 0]] = True
+    d = distance_transform_edt(~occupied) * FIELD_RES_M
+    fine = np.exp(-0.5 * (d / FIELD_SIGMA_M) ** 2)
+    coarse = maximum_filter(fine, size=COARSE_CELLS + 1, mode="constant")
+    return LikelihoodField(fine, coarse, lo, points, _normals_of(points), cKDTree(points))
+
+
+def _normals_of(points: np.ndarray) -> np.ndarray:
+    """Normals from each point's nearest neighbours (points from several scans)."""
+    tree = cKDTree(points)
+    _, idx = tree.query(points, k=min(6, len(points)))
+    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    cov_xx = (nb[:, :, 0] ** 2).sum(1)
+    cov_yy = (nb[:, :, 1] ** 2).sum(1)
+    cov_xy = (nb[:, :, 0] * nb[:, :, 1]).sum(1)
+    # direction of least spread = the normal
+    angle = 0.5 * np.arctan2(2 * cov_xy, cov_xx - cov_yy) + math.pi / 2
+    return np.column_stack((np.cos(angle), np.sin(angle)))
+
+
+def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, theta: float,
+            base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
+    """Mean field value of ``pts`` rotated by θ and moved to base + (tx, ty) cells, for every
+    (ty, tx) pair: an array of shape (len(ty), len(tx))."""
+    c, s = math.cos(theta), math.sin(theta)
+    x = base[0] + c * pts[:, 0] - s * pts[:, 1]
+    y = base[1] + s * pts[:, 0] + c * pts[:, 1]
+    ix = np.floor((x - origin[0]) / FIELD_RES_M + 0.5).astype(np.int64)
+    iy = np.floor((y - origin[1]) / FIELD_RES_M + 0.5).astype(np.int64)
+    rows, cols = grid.shape
+    cx = ix[:, None] + tx[None, :]  # N × Tx
+    cy = iy[:, None] + ty[None, :]  # N × Ty
+    okx = (cx >= 0) & (cx < cols)
+    oky = (cy >= 0) & (cy < rows)
+    cx = np.clip(cx, 0, cols - 1)
+    cy = np.clip(cy, 0, rows - 1)
+    vals = grid[cy[:, :, None], cx[:, None, :]] * (oky[:, :, None] & okx[:, None, :])
+    return vals.mean(axis=0)
+
+
+def constraint_ratio(points: np.ndarray) -> float:
+    """How well a set of points pins down a position, weakest direction over strongest
+    (eigenvalues of the sum of n nᵀ over the points' normals): about 0 for the two walls of a
+    corridor, which say nothing about the position along it."""
+    n = _normals_of(points)
+    ev = np.linalg.eigvalsh(n.T @ n)
+    return float(ev[0] / max(ev[1], 1e-12))
+
+
+@dataclass(frozen=True)
+class Match:
+    """A correlative match: the pose, its score (mean likelihood of the points, 0–1) and the
+    covariance of the poses that score almost as well (its ambiguity)."""
+
+    pose: Pose2D
+    score: float
+    cov: np.ndarray
+
+
+def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
+                      window_m: float, window_deg: float) -> Match:
+    """Best pose of ``pts``' frame in the field's frame within the window around ``guess``.
+
+    Scores are weighed by a mild preference for the guess, so along a featureless corridor
+    (where every offset scores the same) the estimate stays put instead of sliding."""
+    half = math.ceil(window_m / (COARSE_CELLS * FIELD_RES_M))
+    coarse_t = np.arange(-half, half + 1) * COARSE_CELLS
+    n_ang = math.ceil(window_deg / ANGLE_STEP_DEG)
+    dthetas = np.radians(np.arange(-n_ang, n_ang + 1) * ANGLE_STEP_DEG)
+    base = np.array([guess.x, guess.y])
+    bounds = np.stack([_scores(field.coarse, field.origin, pts, guess.theta + d, base,
+                               coarse_t, coarse_t) for d in dthetas])
+    ranked = bounds * _preference(coarse_t * FIELD_RES_M, window_m, dthetas, window_deg)
+    fine_t = np.arange(-(COARSE_CELLS // 2), COARSE_CELLS // 2 + 1)
+    sub_angles = np.radians(np.array([-0.5, 0.0, 0.5]) * ANGLE_STEP_DEG)
+    best = (-1.0, 0.0, guess)  # (weighed score, score, pose)
+    for flat in np.argsort(ranked, axis=None)[::-1][:TOP_COARSE]:
+        a, r, c = np.unravel_index(int(flat), ranked.shape)
+        if ranked[a, r, c] <= best[0]:
+            break  # the coarse score bounds every fine score below it
+        tx, ty = coarse_t[c] + fine_t, coarse_t[r] + fine_t
+        for sub in sub_angles:
+            th = dthetas[a] + sub
+            sc = _scores(field.fine, field.origin, pts, guess.theta + th, base, tx, ty)
+            w = sc * _preference(np.column_stack((np.broadcast_to(tx[None, :], sc.shape).ravel(),
+                                                  np.repeat(ty, len(tx)))) * FIELD_RES_M,
+                                 window_m, np.array([th]), window_deg).reshape(sc.shape)
+            i, j = np.unravel_index(int(np.argmax(w)), w.shape)
+            if w[i, j] > best[0]:
+                best = (float(w[i, j]), float(sc[i, j]), Pose2D(
+                    guess.x + tx[j] * FIELD_RES_M, guess.y + ty[i] * FIELD_RES_M,
+                    guess.theta + th))
+    _, score, pose = best
+    return Match(pose, score, _ambiguity(bounds, coarse_t * FIELD_RES_M, dthetas, score))
+
+
+DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge
+AMBIGUITY_SHARE = 0.95  # poses whose coarse bound reaches this share of the best score
+
+
+def _preference(t_m: np.ndarray, window_m: float, dthetas: np.ndarray,
+                window_deg: float) -> np.ndarray:
+    """Weight 1 at the guess falling to 1 − DISTANCE_PREFERENCE at the window's edge. With
+    ``t_m`` 1-D (the grid's offsets) the result is (angles, Ty, Tx); with ``t_m`` N×2 it is
+    (angles, N)."""
+    ang = (np.degrees(dthetas) / max(window_deg, 1e-9)) ** 2
+    if t_m.ndim == 1:
+        d2 = (t_m[None, :] ** 2 + t_m[:, None] ** 2) / max(window_m, 1e-9) ** 2
+        return 1.0 - DISTANCE_PREFERENCE * 0.5 * (d2[None] + ang[:, None, None])
+    d2 = (t_m ** 2).sum(1) / max(window_m, 1e-9) ** 2
+    return 1.0 - DISTANCE_PREFERENCE * 0.5 * (d2[None, :] + ang[:, None])
+
+
+def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
+               score: float) -> np.ndarray:
+    """Covariance (x, y, θ) of the coarse cells that could hold a pose about as good as the
+    best: wide along a corridor, small where the scene pins the match down."""
+    a, r, c = np.nonzero(bounds >= AMBIGUITY_SHARE * score)
+    if len(a) < 2:
+        return np.diag([COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
+                        math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
+    cells = np.column_stack((t_m[c], t_m[r], dthetas[a]))
+    return np.cov(cells, rowvar=False) + np.diag(
+        [COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
+         math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
+
+
+class LoopCloser:
+    """Keeps the graph, the key scans and the closures."""
+
+    def __init__(self, cfg: LoopConfig, match: MatchConfig, ekf: EkfConfig) -> None:
+        self.cfg = cfg
+        self.match = match
+        self.ekf = ekf
+        self.graph = PoseGraph()
+        self.front: list[Pose2D] = []  # the EKF's pose at each node
+        self.points: list[np.ndarray] = []  # each node's scan points, robot frame
+        self.path: list[float] = []  # distance driven up to each node
+        self.closures = 0
+        self.attempts = 0
+        self._since_closure_m = 0.0
+        self._last_attempt_m = -math.inf
+        self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
+
+    def wants_node(self, front_pose: Pose2D) -> bool:
+        if not self.front:
+            return True
+        d = relative(self.front[-1], front_pose)
+        return (math.hypot(d.x, d.y) >= self.cfg.node_distance_m
+                or abs(d.theta) >= math.radians(self.cfg.node_angle_deg))
+
+    def add_node(self, front_pose: Pose2D, points: np.ndarray) -> bool:
+        """A new node at the EKF's pose, chained to the previous node; then a loop closure
+        attempt. Returns True if the graph was optimized (the map frame moved)."""
+        graph = self.graph
+        if not self.front:
+            graph.add_node(np.array([front_pose.x, front_pose.y, front_pose.theta]))
+            self._append(front_pose, points, 0.0)
+            return False
+        k_prev = len(self.front) - 1
+        z = relative(self.front[-1], front_pose)
+        est = compose(self.pose(k_prev), z)
+        k = graph.add_node(np.array([est.x, est.y, est.theta]))
+        cov = motion_noise(np.array([z.x, z.y, z.theta]), self.ekf.noise)
+        info = np.linalg.inv(cov * self.cfg.chain_noise_scale ** 2)
+        graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
+        step = math.hypot(z.x, z.y)
+        self._append(front_pose, points, self.path[-1] + step)
+        self._since_closure_m += step
+        return self._try_closure(k)
+
+    def pose(self, k: int) -> Pose2D:
+        x = self.graph.poses[k]
+        return Pose2D(float(x[0]), float(x[1]), float(x[2]))
+
+    def _append(self, front_pose: Pose2D, points: np.ndarray, path: float) -> None:
+        self.front.append(front_pose)
+        self.points.append(points)
+        self.path.append(path)
+
+    def _candidates(self, k: int, radius: float) -> list[int]:
+        path = np.asarray(self.path)
+        old = np.flatnonzero(path <= path[k] - self.cfg.min_travel_m)
+        if len(old) == 0:
+            return []
+        xy = self.graph.poses[old, :2]
+        d = np.hypot(xy[:, 0] - self.graph.poses[k, 0], xy[:, 1] - self.graph.poses[k, 1])
+        near = old[d <= radius]
+        return [int(i) for i in near[np.argsort(d[d <= radius], kind="stable")]]
+
+    def _try_closure(self, k: int) -> bool:
+        cfg = self.cfg
+        if self.path[k] - self._last_attempt_m < cfg.attempt_every_m:
+            return False
+        radius = min(cfg.search_radius_m + cfg.drift_per_m * self._since_closure_m,
+                     cfg.max_search_radius_m)
+        candidates = self._candidates(k, radius)
+        if not candidates:
+            return False
+        self._last_attempt_m = self.path[k]
+        self.attempts += 1
+        i = candidates[0]
+        window_deg = min(cfg.search_angle_deg + self._since_closure_m / 10.0,
+                         cfg.max_search_angle_deg)
+        query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
+        if constraint_ratio(query) < cfg.min_constraint_ratio:
+            return False  # a corridor: it could be anywhere along it
+        field = self._field(i, radius)
+        guess = relative(self.pose(i), self.pose(k))
+        match = correlative_match(field, query, guess, radius, window_deg)
+        if (match.score < cfg.min_score
+                or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
+            return False
+        pose, share, rms = icp(field.points, field.normals, field.tree, query, match.pose,
+                               self.match, np.sqrt(np.diag(match.cov)))
+        if share < cfg.min_inliers or rms > cfg.max_rms_m:
+            return False
+        info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
+        self.graph.add_edge(i, k, np.array([pose.x, pose.y, pose.theta]), info,
+                                   robust=True)
+        self.graph.optimize()
+        self.closures += 1
+        self._since_closure_m = 0.0
+        self._fields.clear()  # the submaps were drawn with the old poses
+        return True
+
+    def _submap(self, centre: int, nodes: range) -> np.ndarray:
+        """Scan points of ``nodes`` in the frame of node ``centre`` (by the graph's poses)."""
+        ref = self.pose(centre)
+        return np.concatenate([transform_points(relative(ref, self.pose(n)), self.points[n])
+                               for n in nodes])
+
+    def _field(self, i: int, radius: float) -> LikelihoodField:
+        if i in self._fields:
+            self._fields.move_to_end(i)
+            return self._fields[i]
+        m = self.cfg.submap_nodes
+        pts = self._submap(i, range(max(0, i - m), min(len(self.front), i + m + 1)))
+        field = likelihood_field(pts, radius + COARSE_CELLS * FIELD_RES_M)
+        self._fields[i] = field
+        if len(self._fields) > 8:
+            self._fields.popitem(last=False)
+        return field
+
+    def scan_pose(self, node: int, front_pose: Pose2D) -> Pose2D:
+        """A scan's pose in the map frame: its node's optimized pose and the EKF's motion
+        since that node."""
+        return compose(self.pose(node), relative(self.front[node], front_pose))

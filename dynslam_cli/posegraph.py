@@ -1,0 +1,145 @@
+"""A 2-D pose graph and its sparse Gauss-Newton optimizer.
+
+Nodes are robot poses (x, y, θ) at key scans; an edge says "node j seen from node i is at
+z, with information Ω" (3×3). The error of an edge is the pose of j relative to i, seen from
+z: ``e = t2v(Z⁻¹ (Xᵢ⁻¹ Xⱼ))``. Gauss-Newton solves the sparse normal equations (the first
+node is held fixed) until the step is tiny. Loop-closure edges carry a Cauchy kernel, so a
+wrong one is pulled on softly while it is being checked; :meth:`PoseGraph.optimize` reports
+each edge's χ² so the caller can remove those that disagree with the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.linalg import spsolve
+
+from dynslam_cli.geometry import wrap_angles
+
+CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
+
+
+@dataclass
+class Edges:
+    """Edges as parallel arrays (grown by :meth:`PoseGraph.add_edge`)."""
+
+    i: list[int]
+    j: list[int]
+    z: list[np.ndarray]
+    info: list[np.ndarray]
+    robust: list[bool]
+
+
+class PoseGraph:
+    """Nodes, edges and :meth:`optimize`."""
+
+    def __init__(self) -> None:
+        self.poses = np.zeros((0, 3))
+        self._capacity_poses = np.zeros((64, 3))
+        self.edges = Edges([], [], [], [], [])
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def add_node(self, pose: np.ndarray) -> int:
+        n = len(self.poses)
+        if n == len(self._capacity_poses):
+            grown = np.zeros((2 * n, 3))
+            grown[:n] = self._capacity_poses[:n]
+            self._capacity_poses = grown
+        self._capacity_poses[n] = pose
+        self.poses = self._capacity_poses[:n + 1]
+        return n
+
+    def add_edge(self, i: int, j: int, z: np.ndarray, info: np.ndarray,
+                 robust: bool = False) -> int:
+        e = self.edges
+        e.i.append(i)
+        e.j.append(j)
+        e.z.append(np.asarray(z, dtype=np.float64))
+        e.info.append(np.asarray(info, dtype=np.float64))
+        e.robust.append(robust)
+        return len(e.i) - 1
+
+    def remove_edge(self, k: int) -> None:
+        e = self.edges
+        for column in (e.i, e.j, e.z, e.info, e.robust):
+            del column[k]
+
+    def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C) -> np.ndarray:
+        """Gauss-Newton over all nodes but the first; returns every edge's χ² (eᵀΩe)."""
+        if not self.edges.i:
+            return np.zeros(0)
+        i = np.asarray(self.edges.i)
+        j = np.asarray(self.edges.j)
+        z = np.asarray(self.edges.z)
+        info = np.asarray(self.edges.info)
+        robust = np.asarray(self.edges.robust)
+        n = len(self.poses)
+        chi2 = np.zeros(len(i))
+        for _ in range(iterations):
+            err, a, b = edge_errors(self.poses, i, j, z)
+            chi2 = np.einsum("ka,kab,kb->k", err, info, err)
+            w = np.where(robust, 1.0 / (1.0 + chi2 / cauchy_c ** 2), 1.0)
+            winfo = info * w[:, None, None]
+            h_ii = np.einsum("kca,kcd,kdb->kab", a, winfo, a)
+            h_ij = np.einsum("kca,kcd,kdb->kab", a, winfo, b)
+            h_jj = np.einsum("kca,kcd,kdb->kab", b, winfo, b)
+            g_i = np.einsum("kca,kcd,kd->ka", a, winfo, err)
+            g_j = np.einsum("kca,kcd,kd->ka", b, winfo, err)
+            rows, cols, vals = [], [], []
+            for blk, r, c in ((h_ii, i, i), (h_ij, i, j), (h_ij.transpose(0, 2, 1), j, i),
+                              (h_jj, j, j)):
+                rr = 3 * r[:, None, None] + np.arange(3)[None, :, None]
+                cc = 3 * c[:, None, None] + np.arange(3)[None, None, :]
+                rows.append(np.broadcast_to(rr, blk.shape).ravel())
+                cols.append(np.broadcast_to(cc, blk.shape).ravel())
+                vals.append(blk.ravel())
+            rows.append(np.arange(3))  # hold the first node where it is
+            cols.append(np.arange(3))
+            vals.append(np.full(3, 1e12))
+            h = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                           shape=(3 * n, 3 * n)).tocsc()
+            g = np.zeros(3 * n)
+            np.add.at(g, (3 * i[:, None] + np.arange(3)).ravel(), g_i.ravel())
+            np.add.at(g, (3 * j[:, None] + np.arange(3)).ravel(), g_j.ravel())
+            step = -spsolve(h, g).reshape(-1, 3)
+            self.poses += step
+            self.poses[:, 2] = wrap_angles(self.poses[:, 2])
+            if np.abs(step[:, :2]).max() < 1e-4 and np.abs(step[:, 2]).max() < 1e-5:
+                break
+        err, _, _ = edge_errors(self.poses, i, j, z)
+        return np.einsum("ka,kab,kb->k", err, info, err)
+
+
+def edge_errors(poses: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each edge's error and its Jacobians with respect to node i (A) and node j (B)."""
+    xi, xj = poses[i], poses[j]
+    ci, si = np.cos(xi[:, 2]), np.sin(xi[:, 2])
+    cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
+    dx, dy = xj[:, 0] - xi[:, 0], xj[:, 1] - xi[:, 1]
+    # pose of j in i's frame, then seen from z
+    lx, ly = ci * dx + si * dy, -si * dx + ci * dy
+    ex = cz * (lx - z[:, 0]) + sz * (ly - z[:, 1])
+    ey = -sz * (lx - z[:, 0]) + cz * (ly - z[:, 1])
+    eth = wrap_angles(xj[:, 2] - xi[:, 2] - z[:, 2])
+    err = np.column_stack((ex, ey, eth))
+    k = len(i)
+    # R_zᵀ R_iᵀ (rows: e_x, e_y; columns: x, y)
+    r00, r01 = cz * ci - sz * si, cz * si + sz * ci
+    r10, r11 = -sz * ci - cz * si, -sz * si + cz * ci
+    # R_zᵀ ∂R_iᵀ/∂θ (t_j − t_i) = R_zᵀ (l_y, −l_x)
+    d0 = cz * ly - sz * lx
+    d1 = -sz * ly - cz * lx
+    a = np.zeros((k, 3, 3))
+    b = np.zeros((k, 3, 3))
+    a[:, 0, 0], a[:, 0, 1], a[:, 0, 2] = -r00, -r01, d0
+    a[:, 1, 0], a[:, 1, 1], a[:, 1, 2] = -r10, -r11, d1
+    a[:, 2, 2] = -1.0
+    b[:, 0, 0], b[:, 0, 1] = r00, r01
+    b[:, 1, 0], b[:, 1, 1] = r10, r11
+    b[:, 2, 2] = 1.0
+    return err, a, b
