@@ -211,20 +211,19 @@ class CornerSlam:
         """Keep the state bounded: landmarks out of sight for ``active_window_scans`` leave
         the filter, then the least recently seen while there are too many."""
         cfg = self.config
-        drop = [i for i, t in enumerate(self.tracks)
-                if self.scan_index - t.last_seen > cfg.active_window_scans]
+        drop = {i for i, t in enumerate(self.tracks)
+                if self.scan_index - t.last_seen > cfg.active_window_scans}
         excess = len(self.tracks) - len(drop) - cfg.max_landmarks
         if excess > 0:
             rest = sorted((t.last_seen, i) for i, t in enumerate(self.tracks) if i not in drop)
-            drop += [i for _, i in rest[:excess]]
+            drop.update(i for _, i in rest[:excess])
         if not drop:
             return
-        drop.sort()
-        self.retired += [r for r in self._records(drop)
+        order = sorted(drop)
+        self.retired += [r for r in self._records(order)
                          if r.observations >= cfg.keep_observations]
-        self.ekf.remove_landmarks(drop)
-        gone = set(drop)
-        self.tracks = [t for i, t in enumerate(self.tracks) if i not in gone]
+        self.ekf.remove_landmarks(order)
+        self.tracks = [t for i, t in enumerate(self.tracks) if i not in drop]
 
     def landmark_records(self) -> list[LandmarkRecord]:
         """Every landmark for the map: those that left the filter, then those in it."""

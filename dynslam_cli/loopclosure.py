@@ -28,7 +28,7 @@ from scipy.ndimage import distance_transform_edt, maximum_filter
 from scipy.spatial import cKDTree
 
 from dynslam_cli.ekf import motion_noise
-from dynslam_cli.geometry import compose, relative, transform_points
+from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.localization import EkfConfig
 from dynslam_cli.posegraph import PoseGraph
 from dynslam_cli.scanmatch import MatchConfig, icp
@@ -75,7 +75,7 @@ class LoopConfig:
     chain_noise_scale: float = 1.5
     """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
     edge_sigma_m: float = 0.05
-    """Standard deviation of a loop edge's best-constrained direction."""
+    """Added (as a standard deviation) to a loop edge's translation uncertainty."""
 
 
 FIELD_RES_M = 0.05
@@ -93,6 +93,7 @@ class LikelihoodField:
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
+    margin: float  # metres of field around the submap's points
     points: np.ndarray
     normals: np.ndarray
     tree: cKDTree
@@ -108,7 +109,8 @@ def likelihood_field(points: np.ndarray, margin_m: float) -> LikelihoodField:
     d = distance_transform_edt(~occupied) * FIELD_RES_M
     fine = np.exp(-0.5 * (d / FIELD_SIGMA_M) ** 2)
     coarse = maximum_filter(fine, size=COARSE_CELLS + 1, mode="constant")
-    return LikelihoodField(fine, coarse, lo, points, _normals_of(points), cKDTree(points))
+    return LikelihoodField(fine, coarse, lo, margin_m, points, _normals_of(points),
+                           cKDTree(points))
 
 
 def _normals_of(points: np.ndarray) -> np.ndarray:
@@ -128,11 +130,8 @@ def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, theta: float,
             base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
     """Mean field value of ``pts`` rotated by θ and moved to base + (tx, ty) cells, for every
     (ty, tx) pair: an array of shape (len(ty), len(tx))."""
-    c, s = math.cos(theta), math.sin(theta)
-    x = base[0] + c * pts[:, 0] - s * pts[:, 1]
-    y = base[1] + s * pts[:, 0] + c * pts[:, 1]
-    ix = np.floor((x - origin[0]) / FIELD_RES_M + 0.5).astype(np.int64)
-    iy = np.floor((y - origin[1]) / FIELD_RES_M + 0.5).astype(np.int64)
+    moved = transform_points(Pose2D(base[0], base[1], theta), pts)
+    ix, iy = np.floor((moved - origin) / FIELD_RES_M + 0.5).astype(np.int64).T
     rows, cols = grid.shape
     cx = ix[:, None] + tx[None, :]  # N × Tx
     cy = iy[:, None] + ty[None, :]  # N × Ty
@@ -176,7 +175,9 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
     base = np.array([guess.x, guess.y])
     bounds = np.stack([_scores(field.coarse, field.origin, pts, guess.theta + d, base,
                                coarse_t, coarse_t) for d in dthetas])
-    ranked = bounds * _preference(coarse_t * FIELD_RES_M, window_m, dthetas, window_deg)
+    t_m = coarse_t * FIELD_RES_M
+    ranked = bounds * _preference(t_m[None, None, :], t_m[None, :, None],
+                                  dthetas[:, None, None], window_m, window_deg)
     fine_t = np.arange(-(COARSE_CELLS // 2), COARSE_CELLS // 2 + 1)
     sub_angles = np.radians(np.array([-0.5, 0.0, 0.5]) * ANGLE_STEP_DEG)
     best = (-1.0, 0.0, guess)  # (weighed score, score, pose)
@@ -188,33 +189,33 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
         for sub in sub_angles:
             th = dthetas[a] + sub
             sc = _scores(field.fine, field.origin, pts, guess.theta + th, base, tx, ty)
-            w = sc * _preference(np.column_stack((np.broadcast_to(tx[None, :], sc.shape).ravel(),
-                                                  np.repeat(ty, len(tx)))) * FIELD_RES_M,
-                                 window_m, np.array([th]), window_deg).reshape(sc.shape)
+            w = sc * _preference(tx[None, :] * FIELD_RES_M, ty[:, None] * FIELD_RES_M, th,
+                                 window_m, window_deg)
             i, j = np.unravel_index(int(np.argmax(w)), w.shape)
             if w[i, j] > best[0]:
                 best = (float(w[i, j]), float(sc[i, j]), Pose2D(
                     guess.x + tx[j] * FIELD_RES_M, guess.y + ty[i] * FIELD_RES_M,
                     guess.theta + th))
     _, score, pose = best
-    return Match(pose, score, _ambiguity(bounds, coarse_t * FIELD_RES_M, dthetas, score))
+    return Match(pose, score, _ambiguity(bounds, t_m, dthetas, score))
 
 
 DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge
 AMBIGUITY_SHARE = 0.95  # poses whose coarse bound reaches this share of the best score
 
 
-def _preference(t_m: np.ndarray, window_m: float, dthetas: np.ndarray,
-                window_deg: float) -> np.ndarray:
-    """Weight 1 at the guess falling to 1 − DISTANCE_PREFERENCE at the window's edge. With
-    ``t_m`` 1-D (the grid's offsets) the result is (angles, Ty, Tx); with ``t_m`` N×2 it is
-    (angles, N)."""
-    ang = (np.degrees(dthetas) / max(window_deg, 1e-9)) ** 2
-    if t_m.ndim == 1:
-        d2 = (t_m[None, :] ** 2 + t_m[:, None] ** 2) / max(window_m, 1e-9) ** 2
-        return 1.0 - DISTANCE_PREFERENCE * 0.5 * (d2[None] + ang[:, None, None])
-    d2 = (t_m ** 2).sum(1) / max(window_m, 1e-9) ** 2
-    return 1.0 - DISTANCE_PREFERENCE * 0.5 * (d2[None, :] + ang[:, None])
+def _preference(dx_m: np.ndarray, dy_m: np.ndarray, dtheta: np.ndarray | float,
+                window_m: float, window_deg: float) -> np.ndarray:
+    """Weight of an offset from the guess (broadcast over the arguments): 1 at the guess,
+    falling to 1 − DISTANCE_PREFERENCE at the window's corner."""
+    d2 = (dx_m ** 2 + dy_m ** 2) / max(window_m, 1e-9) ** 2
+    a2 = (np.degrees(dtheta) / max(window_deg, 1e-9)) ** 2
+    return 1.0 - DISTANCE_PREFERENCE * 0.5 * (d2 + a2)
+
+
+# Spread of one coarse cell (uniform over its width): the least uncertainty a match has.
+CELL_COV = np.diag([COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
+                    math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
 
 
 def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
@@ -223,12 +224,8 @@ def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
     best: wide along a corridor, small where the scene pins the match down."""
     a, r, c = np.nonzero(bounds >= AMBIGUITY_SHARE * score)
     if len(a) < 2:
-        return np.diag([COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
-                        math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
-    cells = np.column_stack((t_m[c], t_m[r], dthetas[a]))
-    return np.cov(cells, rowvar=False) + np.diag(
-        [COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
-         math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
+        return CELL_COV.copy()
+    return np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV
 
 
 class LoopCloser:
@@ -337,18 +334,21 @@ class LoopCloser:
                                for n in nodes])
 
     def _field(self, i: int, radius: float) -> LikelihoodField:
-        if i in self._fields:
+        """Node i's submap as a likelihood field with room for a search of ``radius``
+        (cached; drawn again for a wider search)."""
+        margin = radius + COARSE_CELLS * FIELD_RES_M
+        cached = self._fields.get(i)
+        if cached is not None and cached.margin >= margin:
             self._fields.move_to_end(i)
-            return self._fields[i]
+            return cached
         m = self.cfg.submap_nodes
         pts = self._submap(i, range(max(0, i - m), min(len(self.front), i + m + 1)))
-        field = likelihood_field(pts, radius + COARSE_CELLS * FIELD_RES_M)
+        field = likelihood_field(pts, margin)
         self._fields[i] = field
         if len(self._fields) > 8:
             self._fields.popitem(last=False)
         return field
 
-    def scan_pose(self, node: int, front_pose: Pose2D) -> Pose2D:
-        """A scan's pose in the map frame: its node's optimized pose and the EKF's motion
-        since that node."""
-        return compose(self.pose(node), relative(self.front[node], front_pose))
+    def correction(self, node: int) -> Pose2D:
+        """The graph's correction of the EKF frame at ``node``: map pose ⊖ EKF pose."""
+        return compose(self.pose(node), inverse(self.front[node]))

@@ -33,7 +33,7 @@ from dynslam_cli.dynamic import (
     neighbourhood_offsets,
     radius_cells,
 )
-from dynslam_cli.geometry import compose, inverse, relative, transform_points, wrap_angles
+from dynslam_cli.geometry import compose, relative, transform_points, wrap_angles
 from dynslam_cli.grid import GridStack, Observation, OccupancyMap
 from dynslam_cli.localization import CornerSlam
 from dynslam_cli.loopclosure import LoopCloser
@@ -252,9 +252,7 @@ class DynamicSlam:
         """EKF-frame positions (N×2) into the map frame by the current graph correction."""
         if self._loops is None or not self._loops.front or len(points) == 0:
             return points
-        k = len(self._loops.front) - 1
-        return transform_points(compose(self._loops.pose(k), inverse(self._loops.front[k])),
-                                points)
+        return transform_points(self._loops.correction(len(self._loops.front) - 1), points)
 
     def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
         """The control input: scan-matched motion where the match is good, else odometry."""
@@ -300,6 +298,7 @@ class DynamicSlam:
         )
 
     def counts(self) -> dict[str, int]:
+        """How localization went, for ``summary.json``."""
         out: dict[str, int] = {}
         if self._matcher is not None:
             m = self._matcher
@@ -325,9 +324,8 @@ class DynamicSlam:
         if self._loops is not None and self._nodes:
             nodes = np.asarray(self._nodes)[[min(r.last_seen, len(self._nodes) - 1)
                                               for r in records]]
-            loops = self._loops
             for k, n in enumerate(nodes):
-                corr = compose(loops.pose(int(n)), inverse(loops.front[int(n)]))
+                corr = self._loops.correction(int(n))
                 p = compose(corr, Pose2D(xy[k, 0], xy[k, 1], 0.0))
                 xy[k] = (p.x, p.y)
                 angles[k] = corr.theta

@@ -4,8 +4,7 @@ Nodes are robot poses (x, y, θ) at key scans; an edge says "node j seen from no
 z, with information Ω" (3×3). The error of an edge is the pose of j relative to i, seen from
 z: ``e = t2v(Z⁻¹ (Xᵢ⁻¹ Xⱼ))``. Gauss-Newton solves the sparse normal equations (the first
 node is held fixed) until the step is tiny. Loop-closure edges carry a Cauchy kernel, so a
-wrong one is pulled on softly while it is being checked; :meth:`PoseGraph.optimize` reports
-each edge's χ² so the caller can remove those that disagree with the rest.
+wrong one pulls only softly.
 """
 
 from __future__ import annotations
@@ -40,9 +39,6 @@ class PoseGraph:
         self._capacity_poses = np.zeros((64, 3))
         self.edges = Edges([], [], [], [], [])
 
-    def __len__(self) -> int:
-        return len(self.poses)
-
     def add_node(self, pose: np.ndarray) -> int:
         n = len(self.poses)
         if n == len(self._capacity_poses):
@@ -54,64 +50,58 @@ class PoseGraph:
         return n
 
     def add_edge(self, i: int, j: int, z: np.ndarray, info: np.ndarray,
-                 robust: bool = False) -> int:
+                 robust: bool = False) -> None:
         e = self.edges
         e.i.append(i)
         e.j.append(j)
         e.z.append(np.asarray(z, dtype=np.float64))
         e.info.append(np.asarray(info, dtype=np.float64))
         e.robust.append(robust)
-        return len(e.i) - 1
 
-    def remove_edge(self, k: int) -> None:
-        e = self.edges
-        for column in (e.i, e.j, e.z, e.info, e.robust):
-            del column[k]
-
-    def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C) -> np.ndarray:
-        """Gauss-Newton over all nodes but the first; returns every edge's χ² (eᵀΩe)."""
+    def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C) -> None:
+        """Gauss-Newton over all nodes but the first (held where it is)."""
         if not self.edges.i:
-            return np.zeros(0)
+            return
         i = np.asarray(self.edges.i)
         j = np.asarray(self.edges.j)
         z = np.asarray(self.edges.z)
         info = np.asarray(self.edges.info)
         robust = np.asarray(self.edges.robust)
         n = len(self.poses)
-        chi2 = np.zeros(len(i))
+        rows, cols = _hessian_pattern(i, j)
+        g_index = np.concatenate([(3 * i[:, None] + np.arange(3)).ravel(),
+                                  (3 * j[:, None] + np.arange(3)).ravel()])
         for _ in range(iterations):
             err, a, b = edge_errors(self.poses, i, j, z)
             chi2 = np.einsum("ka,kab,kb->k", err, info, err)
             w = np.where(robust, 1.0 / (1.0 + chi2 / cauchy_c ** 2), 1.0)
             winfo = info * w[:, None, None]
-            h_ii = np.einsum("kca,kcd,kdb->kab", a, winfo, a)
             h_ij = np.einsum("kca,kcd,kdb->kab", a, winfo, b)
-            h_jj = np.einsum("kca,kcd,kdb->kab", b, winfo, b)
-            g_i = np.einsum("kca,kcd,kd->ka", a, winfo, err)
-            g_j = np.einsum("kca,kcd,kd->ka", b, winfo, err)
-            rows, cols, vals = [], [], []
-            for blk, r, c in ((h_ii, i, i), (h_ij, i, j), (h_ij.transpose(0, 2, 1), j, i),
-                              (h_jj, j, j)):
-                rr = 3 * r[:, None, None] + np.arange(3)[None, :, None]
-                cc = 3 * c[:, None, None] + np.arange(3)[None, None, :]
-                rows.append(np.broadcast_to(rr, blk.shape).ravel())
-                cols.append(np.broadcast_to(cc, blk.shape).ravel())
-                vals.append(blk.ravel())
-            rows.append(np.arange(3))  # hold the first node where it is
-            cols.append(np.arange(3))
-            vals.append(np.full(3, 1e12))
-            h = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                           shape=(3 * n, 3 * n)).tocsc()
-            g = np.zeros(3 * n)
-            np.add.at(g, (3 * i[:, None] + np.arange(3)).ravel(), g_i.ravel())
-            np.add.at(g, (3 * j[:, None] + np.arange(3)).ravel(), g_j.ravel())
+            vals = np.concatenate([np.einsum("kca,kcd,kdb->kab", a, winfo, a).ravel(),
+                                   h_ij.ravel(), h_ij.transpose(0, 2, 1).ravel(),
+                                   np.einsum("kca,kcd,kdb->kab", b, winfo, b).ravel(),
+                                   np.full(3, 1e12)])  # the first node's anchor
+            h = coo_matrix((vals, (rows, cols)), shape=(3 * n, 3 * n)).tocsc()
+            g = np.bincount(g_index, np.concatenate([
+                np.einsum("kca,kcd,kd->ka", a, winfo, err).ravel(),
+                np.einsum("kca,kcd,kd->ka", b, winfo, err).ravel()]), minlength=3 * n)
             step = -spsolve(h, g).reshape(-1, 3)
             self.poses += step
             self.poses[:, 2] = wrap_angles(self.poses[:, 2])
             if np.abs(step[:, :2]).max() < 1e-4 and np.abs(step[:, 2]).max() < 1e-5:
                 break
-        err, _, _ = edge_errors(self.poses, i, j, z)
-        return np.einsum("ka,kab,kb->k", err, info, err)
+
+
+def _hessian_pattern(i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column of every entry of the 3×3 blocks (i,i), (i,j), (j,i), (j,j) of each
+    edge, in that order, then the first node's diagonal."""
+    rows, cols = [], []
+    for r, c in ((i, i), (i, j), (j, i), (j, j)):
+        rows.append(np.broadcast_to(3 * r[:, None, None] + np.arange(3)[None, :, None],
+                                    (len(r), 3, 3)).ravel())
+        cols.append(np.broadcast_to(3 * c[:, None, None] + np.arange(3)[None, None, :],
+                                    (len(c), 3, 3)).ravel())
+    return np.concatenate([*rows, np.arange(3)]), np.concatenate([*cols, np.arange(3)])
 
 
 def edge_errors(poses: np.ndarray, i: np.ndarray, j: np.ndarray, z: np.ndarray

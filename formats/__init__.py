@@ -102,7 +102,7 @@ def detect_format(source: Source) -> ReaderEntry:
     for entry in all_readers():
         if any(stem.endswith(s) for s in entry.suffixes):
             return entry
-    if not source.head and not source.is_dir:
+    if not source.head:
         raise InputError(source.name, "empty log: no records at all")
     raise InputError(source.name, "cannot tell the log format from its content or name; "
                      f"name it with --format ({', '.join(reader_names())})")
@@ -152,8 +152,7 @@ def describe_log(path: str, options: ReaderOptions, format_name: str | None = No
     topics = getattr(reader, "topics", None)
     return {"path": source.name, "format": entry.name,
             **({"scan_topic": topics[0], "odom_topic": topics[1]} if topics else {}),
-            "records": reader.stats.to_dict()[
-        "records"], "scans": n, "beams": sorted(beams), "fov_deg": sorted(fovs),
-        "max_range_m": sorted(max_ranges), "duration_s": round(last - first, 3) if n else 0.0,
-        "odometry": odometry, "skipped": dict(reader.stats.skipped),
-        "warnings": dict(reader.stats.warnings)}
+            "records": reader.stats.to_dict()["records"], "scans": n,
+            "beams": sorted(beams), "fov_deg": sorted(fovs), "max_range_m": sorted(max_ranges),
+            "duration_s": round(last - first, 3) if n else 0.0, "odometry": odometry,
+            "skipped": dict(reader.stats.skipped), "warnings": dict(reader.stats.warnings)}

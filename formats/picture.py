@@ -65,7 +65,7 @@ class SnapshotWriter:
         if stamp < self.next:
             return
         self.next = stamp + self.every
-        self._take(stamp, slam.result())
+        self._take(stamp, slam.current())
 
     def _take(self, stamp: float, result: Any) -> None:
         s = result.static
