@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from dynslam_cli.ekf import motion_noise
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.localization import EkfConfig
-from dynslam_cli.posegraph import PoseGraph
+from dynslam_cli.posegraph import PoseGraph, edge_errors
 from dynslam_cli.scanmatch import MatchConfig, icp
 from dynslam_cli.types import Pose2D
 
@@ -74,6 +74,10 @@ class LoopConfig:
     """Try at most once per this much driven (a closure just made needs no repeat)."""
     chain_noise_scale: float = 1.5
     """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
+    agree_chi2: float = 0.1
+    """A closure whose error under the current estimate is below this χ² already agrees
+    with the graph: the optimization waits (for the next disagreeing closure or the end),
+    so revisiting a well-mapped place does not re-solve the whole graph every metre."""
     edge_sigma_m: float = 0.05
     """Added (as a standard deviation) to a loop edge's translation uncertainty."""
 
@@ -241,6 +245,7 @@ class LoopCloser:
         self.path: list[float] = []  # distance driven up to each node
         self.closures = 0
         self.attempts = 0
+        self._pending = False  # closures added but not yet optimized
         self._since_closure_m = 0.0
         self._last_attempt_m = -math.inf
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
@@ -319,13 +324,27 @@ class LoopCloser:
         if share < cfg.min_inliers or rms > cfg.max_rms_m:
             return False
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
-        self.graph.add_edge(i, k, np.array([pose.x, pose.y, pose.theta]), info,
-                                   robust=True)
-        self.graph.optimize()
+        z = np.array([pose.x, pose.y, pose.theta])
+        self.graph.add_edge(i, k, z, info, robust=True)
         self.closures += 1
         self._since_closure_m = 0.0
-        self._fields.clear()  # the submaps were drawn with the old poses
+        err, _, _ = edge_errors(self.graph.poses, np.array([i]), np.array([k]), z[None, :])
+        if float(err[0] @ info @ err[0]) <= cfg.agree_chi2:
+            self._pending = True  # the graph already agrees: optimize later, not now
+            return False
+        self.optimize()
         return True
+
+    def optimize(self) -> None:
+        """Optimize the graph (always once at the end, for the final trajectory)."""
+        self.graph.optimize()
+        self._pending = False
+        self._fields.clear()  # the submaps were drawn with the old poses
+
+    def finish(self) -> None:
+        """Optimize if closures are waiting (call once the log has ended)."""
+        if self._pending:
+            self.optimize()
 
     def _submap(self, centre: int, nodes: range) -> np.ndarray:
         """Scan points of ``nodes`` in the frame of node ``centre`` (by the graph's poses)."""

@@ -272,6 +272,7 @@ class DynamicSlam:
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
         if self._loops is None or self._store is None or not len(self._store):
             return self._result(self.mapper, trajectory)
+        self._loops.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
         mapper = DynamicMapper(self.config)
         for (_, x, y, th), scan in zip(trajectory, self._store.scans(), strict=True):

@@ -122,6 +122,7 @@ def test_loop_closer_closes_a_revisit():
             step = relative(path[k - 1], p)
             front = compose(front, Pose2D(step.x, step.y, step.theta + math.radians(0.4)))
         closures.append(closer.add_node(front, robot_points(p)))
+    closer.finish()
     assert closer.closures >= 1 and closures.index(True) >= 8  # only on the way back
 
     def worst(poses: list[Pose2D]) -> float:
