@@ -14,11 +14,12 @@ Everything is in the laser frame, metres and radians.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from dynslam_cli import kernels
 
 MAX_BEAMS_BETWEEN_SIDES = 3  # beams at the very corner may form a run of their own
 
@@ -67,50 +68,6 @@ def _clusters(r: np.ndarray, ok: np.ndarray, cfg: CornerConfig) -> list[np.ndarr
     return [c for c in np.split(idx, cuts) if len(c) >= 2 * cfg.min_points]
 
 
-def _split(pts: np.ndarray, lo: int, hi: int, tol: float, out: list[tuple[int, int]]) -> None:
-    """Recursive split of pts[lo:hi+1] into straight runs (inclusive index pairs)."""
-    stack = [(lo, hi)]
-    while stack:
-        a, b = stack.pop()
-        if b - a < 2:
-            out.append((a, b))
-            continue
-        p, q = pts[a], pts[b]
-        d = q - p
-        n = math.hypot(d[0], d[1])
-        seg = pts[a + 1:b]
-        if n < 1e-9:
-            dist = np.hypot(seg[:, 0] - p[0], seg[:, 1] - p[1])
-        else:
-            dist = np.abs(d[0] * (seg[:, 1] - p[1]) - d[1] * (seg[:, 0] - p[0])) / n
-        k = int(np.argmax(dist))
-        if dist[k] > tol:
-            m = a + 1 + k
-            stack.append((m, b))
-            stack.append((a, m))
-        else:
-            out.append((a, b))
-
-
-def fit_line(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Total least squares: (point on line, unit direction, RMS residual)."""
-    c = pts.mean(axis=0)
-    _u, s, vt = np.linalg.svd(pts - c, full_matrices=False)
-    direction = vt[0]
-    rms = float(s[1] / math.sqrt(len(pts))) if len(s) > 1 else 0.0
-    return c, direction, rms
-
-
-def _intersect(c1: np.ndarray, d1: np.ndarray, c2: np.ndarray, d2: np.ndarray
-               ) -> np.ndarray | None:
-    den = d1[0] * d2[1] - d1[1] * d2[0]
-    if abs(den) < 1e-9:
-        return None
-    w = c2 - c1
-    t = (w[0] * d2[1] - w[1] * d2[0]) / den
-    return c1 + t * d1
-
-
 def detect_corners(ranges: np.ndarray, angles: np.ndarray, max_range: float,
                    cfg: CornerConfig) -> list[Corner]:
     """Corners of one scan (see the module docstring)."""
@@ -119,43 +76,11 @@ def detect_corners(ranges: np.ndarray, angles: np.ndarray, max_range: float,
         ok = np.isfinite(ranges) & (ranges > 0.05) & (ranges < limit)
     r = np.where(ok, ranges, 0.0)
     pts_all = np.column_stack((r * np.cos(angles), r * np.sin(angles)))
-    corners: list[Corner] = []
     cos_max = math.cos(math.radians(cfg.min_angle_deg))
+    corners = []
     for cluster in _clusters(r, ok, cfg):
-        pts = pts_all[cluster]
-        runs: list[tuple[int, int]] = []
-        _split(pts, 0, len(pts) - 1, cfg.split_tolerance_m, runs)
-        runs.sort()
-        fits = []
-        for a, b in runs:
-            seg = pts[a:b + 1]
-            length = float(np.hypot(*(seg[-1] - seg[0])))
-            good = len(seg) >= cfg.min_points and length >= cfg.min_length_m
-            fit = fit_line(seg) if good else None
-            fits.append(fit if fit is not None and fit[2] <= cfg.max_fit_rms_m else None)
-        good = [k for k, f in enumerate(fits) if f is not None]
-        for k, k2 in itertools.pairwise(good):
-            f1, f2 = fits[k], fits[k2]
-            if runs[k2][0] - runs[k][1] > MAX_BEAMS_BETWEEN_SIDES:
-                continue  # something else lies between the two sides
-            if abs(float(f1[1] @ f2[1])) > cos_max:
-                continue  # nearly collinear: not a real angle
-            c = _intersect(f1[0], f1[1], f2[0], f2[1])
-            if c is None:
-                continue
-            end1, start2 = pts[runs[k][1]], pts[runs[k2][0]]
-            if (np.hypot(*(c - end1)) > cfg.max_gap_m or np.hypot(*(c - start2)) > cfg.max_gap_m
-                    or np.hypot(c[0], c[1]) > limit):
-                continue
-            a_end, b_end = pts[runs[k][0]], pts[runs[k2][1]]
-            corners.append(Corner(float(c[0]), float(c[1]), _convex(c, a_end, b_end)))
+        found = kernels.corners_of_cluster(
+            pts_all[cluster], cfg.split_tolerance_m, cfg.min_points, cfg.min_length_m,
+            cfg.max_fit_rms_m, cos_max, cfg.max_gap_m, limit, MAX_BEAMS_BETWEEN_SIDES)
+        corners += [Corner(x, y, convex) for x, y, convex in found]
     return corners
-
-
-def _convex(c: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
-    """Convex (pointing at the sensor at the origin) iff the corner and the origin lie on
-    the same side of the line through the two far ends."""
-    d = b - a
-    side_c = d[0] * (c[1] - a[1]) - d[1] * (c[0] - a[0])
-    side_o = d[0] * (0 - a[1]) - d[1] * (0 - a[0])
-    return bool(side_c * side_o > 0)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynslam_cli import kernels
 from dynslam_cli.grid import logit
 
 FREE, UNKNOWN, OCCUPIED = 0, 1, 2
@@ -81,7 +82,7 @@ def classify_static(logodds: np.ndarray, low: float, high: float) -> np.ndarray:
 def neighbourhood_offsets(radius_cells: int, cols: int) -> np.ndarray:
     """Flat-index offsets of the square window of the given radius (row-major grid)."""
     r = np.arange(-radius_cells, radius_cells + 1)
-    return (r[:, None] * cols + r[None, :]).ravel()
+    return (r[:, None] * cols + r[None, :]).ravel().astype(np.intp)
 
 
 def classify_neighbourhood(static_flat: np.ndarray, cells: np.ndarray, offsets: np.ndarray,
@@ -89,11 +90,8 @@ def classify_neighbourhood(static_flat: np.ndarray, cells: np.ndarray, offsets: 
     """State of S^{t-1} around each cell (Sec. 5): Occupied if any cell of the window is
     Occupied, Free only if every cell is Free, else Unknown. So an end point that falls a
     cell off a wall (pose or rounding error) still counts as hitting the wall."""
-    window = static_flat[cells[:, None] + offsets[None, :]]
-    state = np.full(len(cells), UNKNOWN, dtype=np.int8)
-    state[(window < logit(low)).all(axis=1)] = FREE
-    state[(window > logit(high)).any(axis=1)] = OCCUPIED
-    return state
+    return kernels.classify_cells(np.asarray(static_flat, dtype=np.float32), cells, offsets,
+                                  logit(low), logit(high))
 
 
 def radius_cells(neighbourhood_m: float, resolution: float) -> int:

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynslam_cli import kernels
 from dynslam_cli.types import Pose2D
 
 
@@ -28,11 +29,9 @@ def probability(logodds: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class Observation:
-    """What one scan says about the grid: flat indices of cells seen free and cells hit.
-
-    A cell hit by one beam and passed through by another is only in ``hit``. ``free`` may hold
-    repeats (updates are written by assignment, so a repeat changes nothing).
-    """
+    """What one scan says about the grid: flat indices of cells seen free and cells hit,
+    each listed once. A cell hit by one beam and passed through by another is only in
+    ``hit``."""
 
     free: np.ndarray
     hit: np.ndarray
@@ -118,45 +117,26 @@ class GridStack:
 
     def observe(self, sensor: Pose2D, ranges: np.ndarray, angles: np.ndarray,
                 max_range: float, min_range: float, clear_cap: float) -> Observation:
-        """Trace every beam of one scan from the sensor pose.
+        """Trace every beam of one scan from the sensor pose (sampled every cell length).
 
         A reading in (min_range, max_range) is a hit at its end and free space up to one cell
         before it;
         a reading >= max_range or +inf is "no return": free space up to ``clear_cap`` and no
         hit; NaN or <= min_range is invalid and ignored.
         """
-        with np.errstate(invalid="ignore"):
-            is_hit = (ranges > min_range) & (ranges < max_range)
-            no_return = ranges >= max_range  # +inf included, NaN excluded
-        length = np.where(is_hit, ranges, np.where(no_return, min(clear_cap, max_range), 0.0))
-        used = length > 0
-        length, ang, is_hit = length[used], angles[used] + sensor.theta, is_hit[used]
-        cos, sin = np.cos(ang), np.sin(ang)
-        ex, ey = sensor.x + length * cos, sensor.y + length * sin
+        ranges = np.ascontiguousarray(ranges, dtype=np.float64)
+        angles = np.ascontiguousarray(angles, dtype=np.float64)
+        beams = (sensor.x, sensor.y, sensor.theta, ranges, angles, min_range, max_range,
+                 clear_cap)
+        x0, y0, x1, y1 = kernels.beam_extent(*beams)
         pad = self.pad
-        if len(length):
-            self.ensure(min(ex.min(), sensor.x) - pad, min(ey.min(), sensor.y) - pad,
-                        max(ex.max(), sensor.x) + pad, max(ey.max(), sensor.y) + pad)
-        else:
-            self.ensure(sensor.x - pad, sensor.y - pad, sensor.x + pad, sensor.y + pad)
-        hit = self.flat_index(ex[is_hit], ey[is_hit])
-
-        # Free space: sample each beam every cell length from the sensor, stopping one cell
-        # short of a hit: the cell a surface passes through is often partly free, and marking
-        # it free from one angle and hit from another would erode walls and flicker D.
-        step = self.resolution
-        free_length = np.where(is_hit, np.maximum(length - step, 0.0), length)
-        counts = np.ceil(free_length / step).astype(np.int64)
-        beam = np.repeat(np.arange(len(length)), counts)
-        starts = np.cumsum(counts) - counts
-        d = (np.arange(counts.sum()) - np.repeat(starts, counts)) * step
-        free = self.flat_index(sensor.x + d * cos[beam], sensor.y + d * sin[beam])
-        mark = self._scratch
-        mark[hit] = True
-        free = free[~mark[free]]
-        mark[hit] = False
-        self.seen.reshape(-1)[free] = True
-        self.seen.reshape(-1)[hit] = True
+        self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        # Free space stops one cell short of a hit: the cell a surface passes through is
+        # often partly free, and marking it free from one angle and hit from another would
+        # erode walls and flicker D.
+        free, hit = kernels.trace_beams(
+            self._scratch.view(np.uint8), self.seen.reshape(-1).view(np.uint8), self.shape[1],
+            self.resolution, self.origin_row, self.origin_col, *beams)
         return Observation(free=free, hit=hit)
 
     def snapshot(self, name: str) -> OccupancyMap:

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from dynslam_cli.ekf import motion_noise
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
+from dynslam_cli.kernels import PointIndex
 from dynslam_cli.localization import EkfConfig
 from dynslam_cli.posegraph import PoseGraph, edge_errors
 from dynslam_cli.scanmatch import MatchConfig, icp
@@ -100,7 +101,7 @@ class LikelihoodField:
     margin: float  # metres of field around the submap's points
     points: np.ndarray
     normals: np.ndarray
-    tree: cKDTree
+    index: PointIndex
 
 
 def likelihood_field(points: np.ndarray, margin_m: float) -> LikelihoodField:
@@ -114,7 +115,7 @@ def likelihood_field(points: np.ndarray, margin_m: float) -> LikelihoodField:
     fine = np.exp(-0.5 * (d / FIELD_SIGMA_M) ** 2)
     coarse = maximum_filter(fine, size=COARSE_CELLS + 1, mode="constant")
     return LikelihoodField(fine, coarse, lo, margin_m, points, _normals_of(points),
-                           cKDTree(points))
+                           PointIndex(points))
 
 
 def _normals_of(points: np.ndarray) -> np.ndarray:
@@ -319,7 +320,7 @@ class LoopCloser:
         if (match.score < cfg.min_score
                 or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
             return False
-        pose, share, rms = icp(field.points, field.normals, field.tree, query, match.pose,
+        pose, share, rms = icp(field.index, field.normals, query, match.pose,
                                self.match, np.sqrt(np.diag(match.cov)))
         if share < cfg.min_inliers or rms > cfg.max_rms_m:
             return False

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dynslam_cli import kernels
 from dynslam_cli.config import Config
 from dynslam_cli.dynamic import (
     OCCUPIED,
@@ -344,16 +345,13 @@ class DynamicSlam:
 
 def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,
                          hit_prev: np.ndarray, table: np.ndarray, model: InverseModel) -> None:
-    """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped.
-    Written by assignment, so a cell listed twice is updated once."""
+    """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
+    to the model's range."""
     flat = layer.reshape(-1)
-    if model.low <= model.clamp_min - model.clamp_max and np.all(table[:, 0] == model.low):
-        flat[obs.free] = model.clamp_min  # one "low" clamps any cell: no need to read it
-    else:
-        flat[obs.free] = np.clip(flat[obs.free] + table[free_prev, 0], model.clamp_min,
-                                 model.clamp_max)
-    flat[obs.hit] = np.clip(flat[obs.hit] + table[hit_prev, 1], model.clamp_min,
-                            model.clamp_max)
+    kernels.add_clamped(flat, obs.free, free_prev, table[:, 0].copy(), model.clamp_min,
+                        model.clamp_max)
+    kernels.add_clamped(flat, obs.hit, hit_prev, table[:, 1].copy(), model.clamp_min,
+                        model.clamp_max)
 
 
 def run(scans: Iterable[Scan], config: Config,

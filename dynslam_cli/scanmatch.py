@@ -16,10 +16,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from dynslam_cli import kernels
 from dynslam_cli.ekf import NoiseModel, motion_noise
 from dynslam_cli.geometry import compose, relative
+from dynslam_cli.kernels import PointIndex
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
@@ -77,50 +78,31 @@ def _normals(pts: np.ndarray) -> np.ndarray:
     return n / norm[:, None]
 
 
-def icp(ref: np.ndarray, ref_normals: np.ndarray, tree: cKDTree, pts: np.ndarray,
-        guess: Pose2D, cfg: MatchConfig, prior_sigma: np.ndarray | None = None
-        ) -> tuple[Pose2D, float, float]:
-    """Point-to-line ICP: the pose of ``pts``' frame in ``ref``'s frame, starting at
-    ``guess``; returns (pose, share of inliers, RMS of inlier residuals).
+def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D,
+        cfg: MatchConfig, prior_sigma: np.ndarray | None = None) -> tuple[Pose2D, float, float]:
+    """Point-to-line ICP: the pose of ``pts``' frame in the frame of the reference points
+    (indexed by ``ref``, with their normals), starting at ``guess``; returns (pose, share of
+    inliers, RMS of inlier residuals).
 
-    ``prior_sigma`` (x, y, θ standard deviations of the guess) adds the guess as a prior, so
-    directions the scene does not constrain (along a corridor, in open space) stay at the
-    odometry's value instead of sliding."""
+    Each of ``cfg.iterations`` Gauss-Newton steps pairs every point with the nearest
+    reference point within a gate that shrinks from ``max_correspondence_m`` to
+    ``min_correspondence_m``, and minimizes the Huber-weighted distances to the reference
+    points' tangent lines. ``prior_sigma`` (x, y, θ standard deviations of the guess) adds
+    the guess as a prior, so directions the scene does not constrain (along a corridor, in
+    open space) stay at the odometry's value instead of sliding. Fewer than 10 pairs: the
+    guess, share 0 and RMS ∞."""
     prior = (np.zeros(3) if prior_sigma is None
              else (RESIDUAL_SIGMA_M / np.maximum(prior_sigma, 1e-6)) ** 2)
-    x, y, th = guess.x, guess.y, guess.theta
-    share, rms = 0.0, math.inf
-    n_it = cfg.iterations
-    for it in range(n_it):
-        gate = cfg.max_correspondence_m + (cfg.min_correspondence_m
-                                           - cfg.max_correspondence_m) * it / max(n_it - 1, 1)
-        c, s = math.cos(th), math.sin(th)
-        p = np.column_stack((x + c * pts[:, 0] - s * pts[:, 1],
-                             y + s * pts[:, 0] + c * pts[:, 1]))
-        dist, j = tree.query(p, distance_upper_bound=gate)
-        ok = np.isfinite(dist)
-        share = float(ok.mean()) if len(ok) else 0.0
-        if ok.sum() < 10:
-            return guess, 0.0, math.inf
-        q, nrm, pp, src = ref[j[ok]], ref_normals[j[ok]], p[ok], pts[ok]
-        resid = ((pp - q) * nrm).sum(1)
-        # d resid / d(x, y, th): n · (1, 0), n · (0, 1), n · (∂R/∂th src)
-        dpx = -s * src[:, 0] - c * src[:, 1]
-        dpy = c * src[:, 0] - s * src[:, 1]
-        jac = np.column_stack((nrm[:, 0], nrm[:, 1], nrm[:, 0] * dpx + nrm[:, 1] * dpy))
-        w = 1.0 / np.maximum(1.0, np.abs(resid) / RESIDUAL_SIGMA_M)  # Huber-like weights
-        a = jac.T @ (jac * w[:, None]) + np.diag(prior)
-        b = jac.T @ (w * resid) + prior * (
-            np.array([x - guess.x, y - guess.y, math.remainder(th - guess.theta, 2 * math.pi)]))
-        try:
-            delta = -np.linalg.solve(a + 1e-9 * np.eye(3), b)
-        except np.linalg.LinAlgError:
-            return guess, 0.0, math.inf
-        x, y, th = x + delta[0], y + delta[1], th + delta[2]
-        rms = float(np.sqrt(np.mean(resid ** 2)))
-        if abs(delta[0]) + abs(delta[1]) < 1e-4 and abs(delta[2]) < 1e-5:
-            break
-    return Pose2D(x, y, math.remainder(th, 2 * math.pi)), share, rms
+    x, y, th, share, rms, ok = kernels.icp(
+        ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
+        cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m,
+        float(prior[0]), float(prior[1]), float(prior[2]), RESIDUAL_SIGMA_M)
+    return (Pose2D(x, y, th), share, rms) if ok else (guess, 0.0, math.inf)
+
+
+def reference(points: np.ndarray) -> tuple[PointIndex, np.ndarray]:
+    """A key scan's points (N×2, in scan order) indexed for ICP, and their normals."""
+    return PointIndex(points), _normals(points)
 
 
 class ScanMatcher:
@@ -129,7 +111,7 @@ class ScanMatcher:
     def __init__(self, cfg: MatchConfig, noise: NoiseModel) -> None:
         self.cfg = cfg
         self.noise = noise
-        self._key: tuple[np.ndarray, np.ndarray, cKDTree] | None = None
+        self._key: tuple[PointIndex, np.ndarray] | None = None
         self._key_odom = Pose2D()  # wheel odometry at the key scan
         self._pose_in_key = Pose2D()  # matched pose of the last scan in the key frame
         self._last_odom = Pose2D()
@@ -148,7 +130,7 @@ class ScanMatcher:
         if self._key is None:
             self._set_key(scan, Pose2D())
             return wheel, False
-        ref, normals, tree = self._key
+        ref, normals = self._key
         guess = compose(self._pose_in_key, wheel)
         if scan.has_odometry:
             sigma = np.sqrt(np.diag(motion_noise(np.array([wheel.x, wheel.y, wheel.theta]),
@@ -158,7 +140,7 @@ class ScanMatcher:
                                 math.radians(cfg.prior_floor_deg)])
         else:
             sigma = NO_ODOMETRY_SIGMA
-        pose, share, rms = icp(ref, normals, tree, pts, guess, cfg, sigma)
+        pose, share, rms = icp(ref, normals, pts, guess, cfg, sigma)
         good = self._good(share, rms, pts)
         if not good and scan.has_odometry:  # odometry glitches (a doubled turn, a stall)
             pose, share, rms = self._recover(pts, guess, sigma)
@@ -186,13 +168,13 @@ class ScanMatcher:
         by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best match
         wins."""
         assert self._key is not None
-        ref, normals, tree = self._key
+        ref, normals = self._key
         guesses = [compose(self._pose_in_key, self._last_increment)]
         guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
                     for d in RECOVERY_TURNS_DEG]
         best = (guess, 0.0, math.inf)
         for g in guesses:
-            pose, share, rms = icp(ref, normals, tree, pts, g, self.cfg, sigma)
+            pose, share, rms = icp(ref, normals, pts, g, self.cfg, sigma)
             if self._good(share, rms, pts) and (share, -rms) > (best[1], -best[2]):
                 best = (pose, share, rms)
         return best
@@ -202,5 +184,5 @@ class ScanMatcher:
         if len(ref) < 20:
             self._key = None
             return
-        self._key = (ref, _normals(ref), cKDTree(ref))
+        self._key = reference(ref)
         self._pose_in_key = pose

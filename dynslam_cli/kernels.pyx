@@ -1,0 +1,431 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False
+"""Compiled inner loops of the per-scan work (built by ``pip install``; see setup.py).
+
+Each function here is a loop that numpy can only express with many small array operations
+per scan (ICP's correspondences and normal equations, the corner detector's split-and-fit,
+the cells a beam passes through). The algorithms, and their documentation, live in the
+Python modules that call them: ``scanmatch``, ``corners``, ``grid``. No fast-math: results
+are the same on every run.
+"""
+
+import numpy as np
+
+from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+
+ctypedef unsigned char u8
+
+
+cdef class PointIndex:
+    """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
+    bound (fastest when the bound is about the cell size: 3×3 buckets are searched)."""
+
+    cdef readonly object points
+    cdef const double[:, ::1] pts
+    cdef double cell, x0, y0
+    cdef Py_ssize_t nx, ny
+    cdef Py_ssize_t[::1] start
+    cdef Py_ssize_t[::1] order
+
+    def __init__(self, points, double cell=0.5):
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.pts = self.points
+        self.cell = cell
+        cdef Py_ssize_t n = self.pts.shape[0], i, b
+        if n == 0:
+            self.x0 = self.y0 = 0.0
+            self.nx = self.ny = 1
+        else:
+            self.x0 = float(np.min(self.points[:, 0]))
+            self.y0 = float(np.min(self.points[:, 1]))
+            self.nx = <Py_ssize_t>floor((np.max(self.points[:, 0]) - self.x0) / cell) + 1
+            self.ny = <Py_ssize_t>floor((np.max(self.points[:, 1]) - self.y0) / cell) + 1
+        bucket = np.empty(n, dtype=np.intp)
+        cdef Py_ssize_t[::1] bk = bucket
+        for i in range(n):
+            bk[i] = self._bucket(self.pts[i, 0], self.pts[i, 1])
+        counts = np.bincount(bucket, minlength=self.nx * self.ny)
+        self.start = np.concatenate(([0], np.cumsum(counts))).astype(np.intp)
+        self.order = np.argsort(bucket, kind="stable").astype(np.intp)
+
+    cdef inline Py_ssize_t _bucket(self, double x, double y) noexcept nogil:
+        cdef Py_ssize_t ix = <Py_ssize_t>floor((x - self.x0) / self.cell)
+        cdef Py_ssize_t iy = <Py_ssize_t>floor((y - self.y0) / self.cell)
+        return iy * self.nx + ix
+
+    cdef Py_ssize_t nearest(self, double x, double y, double bound) noexcept nogil:
+        """Index of the nearest point closer than ``bound``, or -1."""
+        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
+        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
+        cdef Py_ssize_t ix, iy, k, j, b, best = -1
+        cdef Py_ssize_t reach = <Py_ssize_t>ceil(bound / self.cell)
+        cdef double d2, dx, dy, best2 = bound * bound
+        if cx < -reach or cy < -reach or cx >= self.nx + reach or cy >= self.ny + reach:
+            return -1
+        for iy in range(max(cy - reach, 0), min(cy + reach + 1, self.ny)):
+            for ix in range(max(cx - reach, 0), min(cx + reach + 1, self.nx)):
+                b = iy * self.nx + ix
+                for k in range(self.start[b], self.start[b + 1]):
+                    j = self.order[k]
+                    dx = self.pts[j, 0] - x
+                    dy = self.pts[j, 1] - y
+                    d2 = dx * dx + dy * dy
+                    if d2 < best2 or (d2 == best2 and best >= 0 and j < best):
+                        best2 = d2
+                        best = j
+        return best
+
+    def query(self, points, double bound):
+        """Nearest-point index of each query point (-1 where none is closer than bound)."""
+        cdef const double[:, ::1] q = np.ascontiguousarray(points, dtype=np.float64)
+        out = np.empty(q.shape[0], dtype=np.intp)
+        cdef Py_ssize_t[::1] o = out
+        cdef Py_ssize_t i
+        for i in range(q.shape[0]):
+            o[i] = self.nearest(q[i, 0], q[i, 1], bound)
+        return out
+
+
+cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
+    """Gaussian elimination with partial pivoting; 0 if singular."""
+    cdef int i, j, k, p
+    cdef double m, t
+    for i in range(3):
+        p = i
+        for k in range(i + 1, 3):
+            if fabs(a[k][i]) > fabs(a[p][i]):
+                p = k
+        if a[p][i] == 0.0:
+            return 0
+        if p != i:
+            for j in range(3):
+                t = a[i][j]; a[i][j] = a[p][j]; a[p][j] = t
+            t = b[i]; b[i] = b[p]; b[p] = t
+        for k in range(i + 1, 3):
+            m = a[k][i] / a[i][i]
+            for j in range(i, 3):
+                a[k][j] -= m * a[i][j]
+            b[k] -= m * b[i]
+    for i in range(2, -1, -1):
+        t = b[i]
+        for j in range(i + 1, 3):
+            t -= a[i][j] * x[j]
+        x[i] = t / a[i][i]
+    return 1
+
+
+def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
+        double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
+        double wx, double wy, double wth, double sigma):
+    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, converged_ok)."""
+    cdef Py_ssize_t n = pts.shape[0], i, j, used
+    cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
+    cdef double jx, jy, jt, share = 0.0, rms = INFINITY, sq
+    cdef double a[3][3]
+    cdef double b[3]
+    cdef double d[3]
+    cdef double jac[3]
+    cdef int it, p, q
+    for it in range(iterations):
+        gate = gate_max + (gate_min - gate_max) * it / max(iterations - 1, 1)
+        c = cos(th)
+        s = sin(th)
+        for p in range(3):
+            b[p] = 0.0
+            for q in range(3):
+                a[p][q] = 0.0
+        used = 0
+        sq = 0.0
+        for i in range(n):
+            px = x + c * pts[i, 0] - s * pts[i, 1]
+            py = y + s * pts[i, 0] + c * pts[i, 1]
+            j = index.nearest(px, py, gate)
+            if j < 0:
+                continue
+            used += 1
+            nx = normals[j, 0]
+            ny = normals[j, 1]
+            r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
+            dpx = -s * pts[i, 0] - c * pts[i, 1]
+            dpy = c * pts[i, 0] - s * pts[i, 1]
+            jac[0] = nx
+            jac[1] = ny
+            jac[2] = nx * dpx + ny * dpy
+            w = 1.0 / max(1.0, fabs(r) / sigma)
+            for p in range(3):
+                b[p] += jac[p] * w * r
+                for q in range(3):
+                    a[p][q] += jac[p] * jac[q] * w
+            sq += r * r
+        share = used / <double>n if n else 0.0
+        if used < 10:
+            return gx, gy, gth, 0.0, INFINITY, False
+        a[0][0] += wx + 1e-9
+        a[1][1] += wy + 1e-9
+        a[2][2] += wth + 1e-9
+        b[0] += wx * (x - gx)
+        b[1] += wy * (y - gy)
+        b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
+        if not solve3(a, b, d):
+            return gx, gy, gth, 0.0, INFINITY, False
+        x -= d[0]
+        y -= d[1]
+        th -= d[2]
+        rms = sqrt(sq / used)
+        if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
+            break
+    return x, y, remainder(th, 2 * 3.141592653589793), share, rms, True
+
+
+# -- corners --------------------------------------------------------------------------------
+
+cdef void line_fit(const double[:, ::1] p, Py_ssize_t a, Py_ssize_t b, double out[5]
+                   ) noexcept nogil:
+    """Total least squares over p[a..b]: centre (x, y), unit direction (x, y), RMS residual."""
+    cdef Py_ssize_t i, n = b - a + 1
+    cdef double mx = 0.0, my = 0.0, sxx = 0.0, syy = 0.0, sxy = 0.0, dx, dy, half, rad, lo
+    for i in range(a, b + 1):
+        mx += p[i, 0]
+        my += p[i, 1]
+    mx /= n
+    my /= n
+    for i in range(a, b + 1):
+        dx = p[i, 0] - mx
+        dy = p[i, 1] - my
+        sxx += dx * dx
+        syy += dy * dy
+        sxy += dx * dy
+    half = 0.5 * (sxx + syy)
+    rad = hypot(0.5 * (sxx - syy), sxy)
+    lo = half - rad
+    if lo < 0.0:
+        lo = 0.0
+    dx = 0.5 * atan2(2.0 * sxy, sxx - syy)  # direction of most spread
+    out[0] = mx
+    out[1] = my
+    out[2] = cos(dx)
+    out[3] = sin(dx)
+    out[4] = sqrt(lo / n)
+
+
+def split_runs(const double[:, ::1] p, Py_ssize_t lo, Py_ssize_t hi, double tol):
+    """Straight runs of p[lo..hi] (inclusive index pairs, in order) by recursive splitting
+    at the point farthest from the chord."""
+    stack = [(lo, hi)]
+    out = []
+    cdef Py_ssize_t a, b, i, k
+    cdef double dx, dy, n, dist, best
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            out.append((a, b))
+            continue
+        dx = p[b, 0] - p[a, 0]
+        dy = p[b, 1] - p[a, 1]
+        n = hypot(dx, dy)
+        best = -1.0
+        k = a + 1
+        for i in range(a + 1, b):
+            if n < 1e-9:
+                dist = hypot(p[i, 0] - p[a, 0], p[i, 1] - p[a, 1])
+            else:
+                dist = fabs(dx * (p[i, 1] - p[a, 1]) - dy * (p[i, 0] - p[a, 0])) / n
+            if dist > best:
+                best = dist
+                k = i
+        if best > tol:
+            stack.append((k, b))
+            stack.append((a, k))
+        else:
+            out.append((a, b))
+    out.sort()
+    return out
+
+
+def corners_of_cluster(const double[:, ::1] p, double tol, Py_ssize_t min_points,
+                       double min_length, double max_rms, double cos_max, double max_gap,
+                       double limit, Py_ssize_t max_beams_between):
+    """Corners (x, y, convex) where two adjacent good straight runs of one cluster meet."""
+    runs = split_runs(p, 0, p.shape[0] - 1, tol)
+    cdef Py_ssize_t m = len(runs), k, prev = -1, a, b, a2, b2
+    cdef double f[5]
+    cdef double g[5]
+    cdef double den, t, cx, cy, side_c, side_o, ax, ay, bx, by
+    cdef int t_i
+    fits = np.zeros((m, 5))
+    cdef double[:, ::1] fv = fits
+    good = np.zeros(m, dtype=np.uint8)
+    cdef u8[::1] gv = good
+    for k in range(m):
+        a, b = runs[k]
+        if (b - a + 1 >= min_points
+                and hypot(p[b, 0] - p[a, 0], p[b, 1] - p[a, 1]) >= min_length):
+            line_fit(p, a, b, f)
+            if f[4] <= max_rms:
+                for t_i in range(5):
+                    fv[k, t_i] = f[t_i]
+                gv[k] = 1
+    out = []
+    for k in range(m):
+        if not gv[k]:
+            continue
+        if prev < 0:
+            prev = k
+            continue
+        a, b = runs[prev]
+        a2, b2 = runs[k]
+        for t_i in range(5):
+            f[t_i] = fv[prev, t_i]
+            g[t_i] = fv[k, t_i]
+        prev = k
+        if a2 - b > max_beams_between:
+            continue  # something else lies between the two sides
+        if fabs(f[2] * g[2] + f[3] * g[3]) > cos_max:
+            continue  # nearly collinear: not a real angle
+        den = f[2] * g[3] - f[3] * g[2]
+        if fabs(den) < 1e-9:
+            continue
+        t = ((g[0] - f[0]) * g[3] - (g[1] - f[1]) * g[2]) / den
+        cx = f[0] + t * f[2]
+        cy = f[1] + t * f[3]
+        if (hypot(cx - p[b, 0], cy - p[b, 1]) > max_gap
+                or hypot(cx - p[a2, 0], cy - p[a2, 1]) > max_gap or hypot(cx, cy) > limit):
+            continue
+        # convex iff the corner and the sensor (origin) lie on one side of the far ends' line
+        ax, ay, bx, by = p[a, 0], p[a, 1], p[b2, 0], p[b2, 1]
+        side_c = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        side_o = (bx - ax) * (0.0 - ay) - (by - ay) * (0.0 - ax)
+        out.append((cx, cy, side_c * side_o > 0))
+    return out
+
+
+# -- beam tracing and the two-map update ----------------------------------------------------
+
+cdef inline double beam_length(double r, double min_range, double max_range, double cap,
+                               bint* hit) noexcept nogil:
+    """Traced length of a reading: itself if a hit, the clearing cap if no return (≥ max
+    range or +inf), 0 if invalid (NaN, ≤ min range)."""
+    hit[0] = r > min_range and r < max_range
+    if hit[0]:
+        return r
+    if r >= max_range:
+        return min(cap, max_range)
+    return 0.0
+
+
+cdef inline Py_ssize_t flat_cell(double x, double y, double res, Py_ssize_t row0,
+                                 Py_ssize_t col0, Py_ssize_t cols) noexcept nogil:
+    return (<Py_ssize_t>floor(y / res) - row0) * cols + (<Py_ssize_t>floor(x / res) - col0)
+
+
+def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
+                const double[::1] angles, double min_range, double max_range, double cap):
+    """(xmin, ymin, xmax, ymax) of the sensor and every traced beam's end."""
+    cdef double x0 = sx, y0 = sy, x1 = sx, y1 = sy, length, ex, ey
+    cdef bint hit
+    cdef Py_ssize_t i
+    for i in range(ranges.shape[0]):
+        length = beam_length(ranges[i], min_range, max_range, cap, &hit)
+        if length > 0:
+            ex = sx + length * cos(angles[i] + sth)
+            ey = sy + length * sin(angles[i] + sth)
+            x0 = min(x0, ex)
+            x1 = max(x1, ex)
+            y0 = min(y0, ey)
+            y1 = max(y1, ey)
+    return x0, y0, x1, y1
+
+
+def trace_beams(u8[::1] mark, u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0,
+                Py_ssize_t col0, double sx, double sy, double sth, const double[::1] ranges,
+                const double[::1] angles, double min_range, double max_range, double cap):
+    """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
+    hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
+    of a hit (to the cap for no return), less any cell hit; each cell listed once. Marks them
+    in ``seen``; ``mark`` (all 0) is scratch."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, cnt, total = 0, nh = 0, nf = 0, c
+    cdef double d, length, ca, sa
+    cdef bint hit_i
+    free_length = np.zeros(n)
+    cdef double[::1] fl = free_length
+    for i in range(n):
+        length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
+        if length <= 0:
+            continue
+        ca = cos(angles[i] + sth)
+        sa = sin(angles[i] + sth)
+        if hit_i:
+            c = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
+            if not mark[c]:
+                mark[c] = 1
+                nh += 1
+            fl[i] = max(length - res, 0.0)
+        else:
+            fl[i] = length
+        total += <Py_ssize_t>ceil(fl[i] / res)
+    hit = np.empty(nh, dtype=np.intp)
+    free = np.empty(total, dtype=np.intp)
+    cdef Py_ssize_t[::1] hv = hit
+    cdef Py_ssize_t[::1] fv = free
+    nh = 0
+    for i in range(n):
+        length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
+        if length <= 0:
+            continue
+        ca = cos(angles[i] + sth)
+        sa = sin(angles[i] + sth)
+        if hit_i:
+            c = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
+            if mark[c] == 1:
+                mark[c] = 3  # listed
+                hv[nh] = c
+                nh += 1
+        cnt = <Py_ssize_t>ceil(fl[i] / res)
+        for k in range(cnt):
+            d = k * res
+            c = flat_cell(sx + d * ca, sy + d * sa, res, row0, col0, cols)
+            if not mark[c]:
+                mark[c] = 2
+                fv[nf] = c
+                nf += 1
+    for k in range(nh):
+        mark[hv[k]] = 0
+        seen[hv[k]] = 1
+    for k in range(nf):
+        mark[fv[k]] = 0
+        seen[fv[k]] = 1
+    return free[:nf].copy(), hit
+
+
+def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
+                   const Py_ssize_t[::1] offsets, double low, double high):
+    """State of each cell's window (cell + offsets): 2 Occupied if any value > high, 0 Free
+    if every value < low, else 1 Unknown (log-odds thresholds)."""
+    cdef Py_ssize_t n = cells.shape[0], m = offsets.shape[0], i, k
+    cdef double v
+    cdef bint occupied, free
+    out = np.empty(n, dtype=np.int8)
+    cdef signed char[::1] o = out
+    for i in range(n):
+        occupied = False
+        free = True
+        for k in range(m):
+            v = logodds[cells[i] + offsets[k]]
+            if v > high:
+                occupied = True
+                break
+            if not v < low:
+                free = False
+        o[i] = 2 if occupied else 0 if free else 1
+    return out
+
+
+def add_clamped(float[::1] logodds, const Py_ssize_t[::1] cells,
+                const signed char[::1] states, const double[::1] value, double lo, double hi):
+    """logodds[cell] += value[state of the cell], clamped to [lo, hi] (cells listed once)."""
+    cdef Py_ssize_t i, c
+    cdef double v
+    for i in range(cells.shape[0]):
+        c = cells[i]
+        v = logodds[c] + value[states[i]]
+        logodds[c] = <float>(lo if v < lo else hi if v > hi else v)
