@@ -141,7 +141,11 @@ class GridStack:
 
     def snapshot(self, name: str) -> OccupancyMap:
         """The layer as probabilities, cropped with the other layers to the observed area."""
-        return self._crop(probability(self.layers[name]))
+        r0, r1, c0, c1 = self.bounds()
+        res = self.resolution
+        return OccupancyMap(prob=probability(self.layers[name][r0:r1, c0:c1]),
+                            resolution=res, origin_x=(self.origin_col + c0) * res,
+                            origin_y=(self.origin_row + r0) * res)
 
     def bounds(self) -> tuple[int, int, int, int]:
         """(row0, row1, col0, col1) half-open local bounds of every observed cell (+1 cell)."""
@@ -152,11 +156,3 @@ class GridStack:
         r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, self.shape[0])
         c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, self.shape[1])
         return int(r0), int(r1), int(c0), int(c1)
-
-    def _crop(self, prob: np.ndarray) -> OccupancyMap:
-        r0, r1, c0, c1 = self.bounds()
-        res = self.resolution
-        return OccupancyMap(prob=prob[r0:r1, c0:c1].copy(), resolution=res,
-                            origin_x=(self.origin_col + c0) * res,
-                            origin_y=(self.origin_row + r0) * res)
-

@@ -27,7 +27,7 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] start
     cdef Py_ssize_t[::1] order
 
-    def __init__(self, points, double cell=0.5):
+    def __init__(self, points, double cell=0.2):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
@@ -54,16 +54,15 @@ cdef class PointIndex:
         return iy * self.nx + ix
 
     cdef Py_ssize_t nearest(self, double x, double y, double bound) noexcept nogil:
-        """Index of the nearest point closer than ``bound``, or -1."""
-        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
-        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
+        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index)."""
+        cdef Py_ssize_t ix0 = <Py_ssize_t>floor((x - bound - self.x0) / self.cell)
+        cdef Py_ssize_t ix1 = <Py_ssize_t>floor((x + bound - self.x0) / self.cell)
+        cdef Py_ssize_t iy0 = <Py_ssize_t>floor((y - bound - self.y0) / self.cell)
+        cdef Py_ssize_t iy1 = <Py_ssize_t>floor((y + bound - self.y0) / self.cell)
         cdef Py_ssize_t ix, iy, k, j, b, best = -1
-        cdef Py_ssize_t reach = <Py_ssize_t>ceil(bound / self.cell)
         cdef double d2, dx, dy, best2 = bound * bound
-        if cx < -reach or cy < -reach or cx >= self.nx + reach or cy >= self.ny + reach:
-            return -1
-        for iy in range(max(cy - reach, 0), min(cy + reach + 1, self.ny)):
-            for ix in range(max(cx - reach, 0), min(cx + reach + 1, self.nx)):
+        for iy in range(max(iy0, 0), min(iy1 + 1, self.ny)):
+            for ix in range(max(ix0, 0), min(ix1 + 1, self.nx)):
                 b = iy * self.nx + ix
                 for k in range(self.start[b], self.start[b + 1]):
                     j = self.order[k]
@@ -74,6 +73,79 @@ cdef class PointIndex:
                         best2 = d2
                         best = j
         return best
+
+    def normals(self, Py_ssize_t k):
+        """Unit normal of every point: the direction of least spread of its k nearest
+        points (itself included)."""
+        cdef Py_ssize_t n = self.pts.shape[0], i, m, kk = min(k, n)
+        out = np.zeros((n, 2))
+        cdef double[:, ::1] o = out
+        idx = np.empty(max(kk, 1), dtype=np.intp)
+        dist = np.empty(max(kk, 1))
+        cdef Py_ssize_t[::1] iv = idx
+        cdef double[::1] dv = dist
+        cdef double mx, my, sxx, syy, sxy, dx, dy, a
+        for i in range(n):
+            self._knn(self.pts[i, 0], self.pts[i, 1], kk, &iv[0], &dv[0])
+            mx = my = 0.0
+            for m in range(kk):
+                mx += self.pts[iv[m], 0]
+                my += self.pts[iv[m], 1]
+            mx /= kk
+            my /= kk
+            sxx = syy = sxy = 0.0
+            for m in range(kk):
+                dx = self.pts[iv[m], 0] - mx
+                dy = self.pts[iv[m], 1] - my
+                sxx += dx * dx
+                syy += dy * dy
+                sxy += dx * dy
+            a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
+            o[i, 0] = cos(a)
+            o[i, 1] = sin(a)
+        return out
+
+    cdef void _knn(self, double x, double y, Py_ssize_t k, Py_ssize_t* idx, double* d2s
+                   ) noexcept nogil:
+        """The k nearest points (k ≤ number of points), nearest first, by rings of buckets
+        until no unsearched bucket can hold a nearer one."""
+        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
+        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
+        cdef Py_ssize_t r = 0, found = 0, ix, iy, b, q, j, m
+        cdef double d2, dx, dy, reach
+        while True:
+            for iy in range(cy - r, cy + r + 1):
+                if iy < 0 or iy >= self.ny:
+                    continue
+                for ix in range(cx - r, cx + r + 1):
+                    if ix < 0 or ix >= self.nx or (r > 0 and cx - r < ix < cx + r
+                                                   and cy - r < iy < cy + r):
+                        continue  # outside the grid, or searched in an earlier ring
+                    b = iy * self.nx + ix
+                    for q in range(self.start[b], self.start[b + 1]):
+                        j = self.order[q]
+                        dx = self.pts[j, 0] - x
+                        dy = self.pts[j, 1] - y
+                        d2 = dx * dx + dy * dy
+                        if found == k and d2 >= d2s[k - 1]:
+                            continue
+                        m = found if found < k else k - 1
+                        while m > 0 and (d2s[m - 1] > d2
+                                         or (d2s[m - 1] == d2 and idx[m - 1] > j)):
+                            d2s[m] = d2s[m - 1]
+                            idx[m] = idx[m - 1]
+                            m -= 1
+                        d2s[m] = d2
+                        idx[m] = j
+                        if found < k:
+                            found += 1
+            reach = min(min(fx - (cx - r), cx + r + 1 - fx),
+                        min(fy - (cy - r), cy + r + 1 - fy)) * self.cell
+            if found == k and d2s[k - 1] <= reach * reach:
+                return
+            if cx - r <= 0 and cy - r <= 0 and cx + r >= self.nx - 1 and cy + r >= self.ny - 1:
+                return  # the whole grid is searched
+            r += 1
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""
@@ -342,27 +414,29 @@ def trace_beams(u8[::1] mark, u8[::1] seen, Py_ssize_t cols, double res, Py_ssiz
     """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
     hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
     of a hit (to the cap for no return), less any cell hit; each cell listed once. Marks them
-    in ``seen``; ``mark`` (all 0) is scratch."""
-    cdef Py_ssize_t n = ranges.shape[0], i, k, cnt, total = 0, nh = 0, nf = 0, c
-    cdef double d, length, ca, sa
+    in ``seen``; ``mark`` (all 0) is scratch. The grid must hold every beam (beam_extent)."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c
+    cdef double length, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
     cdef bint hit_i
-    free_length = np.zeros(n)
-    cdef double[::1] fl = free_length
+    steps = np.zeros(n, dtype=np.intp)
+    dirs = np.zeros((n, 2))
+    cdef Py_ssize_t[::1] cnt = steps
+    cdef double[:, ::1] dv = dirs
     for i in range(n):
         length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
         if length <= 0:
             continue
-        ca = cos(angles[i] + sth)
-        sa = sin(angles[i] + sth)
+        dv[i, 0] = cos(angles[i] + sth)
+        dv[i, 1] = sin(angles[i] + sth)
         if hit_i:
-            c = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
+            c = flat_cell(sx + length * dv[i, 0], sy + length * dv[i, 1], res, row0, col0,
+                          cols)
             if not mark[c]:
                 mark[c] = 1
                 nh += 1
-            fl[i] = max(length - res, 0.0)
-        else:
-            fl[i] = length
-        total += <Py_ssize_t>ceil(fl[i] / res)
+            length = max(length - res, 0.0)
+        cnt[i] = <Py_ssize_t>ceil(length / res)
+        total += cnt[i]
     hit = np.empty(nh, dtype=np.intp)
     free = np.empty(total, dtype=np.intp)
     cdef Py_ssize_t[::1] hv = hit
@@ -370,20 +444,15 @@ def trace_beams(u8[::1] mark, u8[::1] seen, Py_ssize_t cols, double res, Py_ssiz
     nh = 0
     for i in range(n):
         length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
-        if length <= 0:
-            continue
-        ca = cos(angles[i] + sth)
-        sa = sin(angles[i] + sth)
         if hit_i:
-            c = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
+            c = flat_cell(sx + length * dv[i, 0], sy + length * dv[i, 1], res, row0, col0,
+                          cols)
             if mark[c] == 1:
                 mark[c] = 3  # listed
                 hv[nh] = c
                 nh += 1
-        cnt = <Py_ssize_t>ceil(fl[i] / res)
-        for k in range(cnt):
-            d = k * res
-            c = flat_cell(sx + d * ca, sy + d * sa, res, row0, col0, cols)
+        for k in range(cnt[i]):  # inside the grid: truncation is floor
+            c = (<Py_ssize_t>(v0 + k * dv[i, 1])) * cols + <Py_ssize_t>(u0 + k * dv[i, 0])
             if not mark[c]:
                 mark[c] = 2
                 fv[nf] = c
@@ -429,3 +498,51 @@ def add_clamped(float[::1] logodds, const Py_ssize_t[::1] cells,
         c = cells[i]
         v = logodds[c] + value[states[i]]
         logodds[c] = <float>(lo if v < lo else hi if v > hi else v)
+
+
+# -- correlative matching (loop closure) ----------------------------------------------------
+
+def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[::1] cols,
+              const double[:, ::1] kernel):
+    """grid[r + i, c + j] = max(itself, kernel[i + h, j + h]) around every (r, c), with
+    h = kernel's half width (cells off the grid are skipped)."""
+    cdef Py_ssize_t h = kernel.shape[0] // 2, n = rows.shape[0], k, i, j, r, c
+    cdef Py_ssize_t nr = grid.shape[0], nc = grid.shape[1]
+    for k in range(n):
+        for i in range(max(-h, -rows[k]), min(h + 1, nr - rows[k])):
+            r = rows[k] + i
+            for j in range(max(-h, -cols[k]), min(h + 1, nc - cols[k])):
+                c = cols[k] + j
+                if kernel[i + h, j + h] > grid[r, c]:
+                    grid[r, c] = kernel[i + h, j + h]
+
+
+def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
+                const double[:, ::1] pts, double x, double y, double theta,
+                const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty):
+    """Mean grid value of ``pts`` turned by θ and moved to (x, y) plus (tx, ty) cells, for
+    every (ty, tx) pair (shape len(ty) × len(tx)); points off the grid count 0. The grid's
+    cell (0, 0) is centred on (ox, oy)."""
+    cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c
+    cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy
+    cdef double ct = cos(theta), st = sin(theta), px, py
+    out = np.zeros((ny, nx))
+    cdef double[:, ::1] o = out
+    for k in range(n):
+        px = x + ct * pts[k, 0] - st * pts[k, 1]
+        py = y + st * pts[k, 0] + ct * pts[k, 1]
+        ix = <Py_ssize_t>floor((px - ox) / res + 0.5)
+        iy = <Py_ssize_t>floor((py - oy) / res + 0.5)
+        for a in range(ny):
+            r = iy + ty[a]
+            if r < 0 or r >= rows:
+                continue
+            for b in range(nx):
+                c = ix + tx[b]
+                if 0 <= c < cols:
+                    o[a, b] += grid[r, c]
+    if n:
+        for a in range(ny):
+            for b in range(nx):
+                o[a, b] /= n
+    return out

@@ -24,9 +24,8 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt, maximum_filter
-from scipy.spatial import cKDTree
 
+from dynslam_cli import kernels
 from dynslam_cli.ekf import motion_noise
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.kernels import PointIndex
@@ -85,74 +84,71 @@ class LoopConfig:
 
 FIELD_RES_M = 0.05
 FIELD_SIGMA_M = 0.08
+FIELD_REACH_CELLS = 7  # the field is 0 beyond 0.35 m (4.4 σ) of every point
 COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
 TOP_COARSE = 6
 ANGLE_STEP_DEG = 1.0
+NORMAL_NEIGHBOURS = 6
+
+
+def _field_kernels() -> tuple[np.ndarray, np.ndarray]:
+    """The fine field around one occupied cell, exp(−d²/2σ²) out to FIELD_REACH_CELLS, and
+    its max over the coarse pass's window (COARSE_CELLS + 1 cells square): the value at the
+    window's cell nearest the centre, as the field falls with distance."""
+    def field(i: np.ndarray) -> np.ndarray:
+        d = i * FIELD_RES_M
+        return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / FIELD_SIGMA_M ** 2)
+
+    h, w = FIELD_REACH_CELLS, COARSE_CELLS // 2
+    wide = np.arange(-h - w, h + w + 1)
+    return field(np.arange(-h, h + 1)), field(np.sign(wide) * np.maximum(np.abs(wide) - w, 0))
+
+
+FINE_KERNEL, COARSE_KERNEL = _field_kernels()
+FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
 
 
 @dataclass
 class LikelihoodField:
-    """exp(−d²/2σ²) of the distance d to the nearest submap point, on a fine grid, and its
-    max-pooled copy for the coarse pass."""
+    """exp(−d²/2σ²) of the distance d from each cell to the nearest occupied cell of the
+    submap, on a fine grid, and its max-pooled copy for the coarse pass."""
 
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
-    margin: float  # metres of field around the submap's points
     points: np.ndarray
     normals: np.ndarray
     index: PointIndex
 
 
-def likelihood_field(points: np.ndarray, margin_m: float) -> LikelihoodField:
-    lo = points.min(axis=0) - margin_m
-    hi = points.max(axis=0) + margin_m
+def likelihood_field(points: np.ndarray) -> LikelihoodField:
+    lo = points.min(axis=0) - FIELD_MARGIN_M
+    hi = points.max(axis=0) + FIELD_MARGIN_M
     shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
-    occupied = np.zeros((shape[1], shape[0]), dtype=bool)
-    cells = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(int)
-    occupied[cells[:, 1], cells[:, 0]] = True
-    d = distance_transform_edt(~occupied) * FIELD_RES_M
-    fine = np.exp(-0.5 * (d / FIELD_SIGMA_M) ** 2)
-    coarse = maximum_filter(fine, size=COARSE_CELLS + 1, mode="constant")
-    return LikelihoodField(fine, coarse, lo, margin_m, points, _normals_of(points),
-                           PointIndex(points))
-
-
-def _normals_of(points: np.ndarray) -> np.ndarray:
-    """Normals from each point's nearest neighbours (points from several scans)."""
-    tree = cKDTree(points)
-    _, idx = tree.query(points, k=min(6, len(points)))
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)
-    cov_xx = (nb[:, :, 0] ** 2).sum(1)
-    cov_yy = (nb[:, :, 1] ** 2).sum(1)
-    cov_xy = (nb[:, :, 0] * nb[:, :, 1]).sum(1)
-    # direction of least spread = the normal
-    angle = 0.5 * np.arctan2(2 * cov_xy, cov_xx - cov_yy) + math.pi / 2
-    return np.column_stack((np.cos(angle), np.sin(angle)))
+    cells = np.unique(np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp), axis=0)
+    fine = np.zeros((shape[1], shape[0]))
+    coarse = np.zeros((shape[1], shape[0]))
+    rows, cols = np.ascontiguousarray(cells[:, 1]), np.ascontiguousarray(cells[:, 0])
+    kernels.splat_max(fine, rows, cols, FINE_KERNEL)
+    kernels.splat_max(coarse, rows, cols, COARSE_KERNEL)
+    index = PointIndex(points)
+    return LikelihoodField(fine, coarse, lo, points, index.normals(NORMAL_NEIGHBOURS), index)
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, theta: float,
             base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
     """Mean field value of ``pts`` rotated by θ and moved to base + (tx, ty) cells, for every
     (ty, tx) pair: an array of shape (len(ty), len(tx))."""
-    moved = transform_points(Pose2D(base[0], base[1], theta), pts)
-    ix, iy = np.floor((moved - origin) / FIELD_RES_M + 0.5).astype(np.int64).T
-    rows, cols = grid.shape
-    cx = ix[:, None] + tx[None, :]  # N × Tx
-    cy = iy[:, None] + ty[None, :]  # N × Ty
-    okx = (cx >= 0) & (cx < cols)
-    oky = (cy >= 0) & (cy < rows)
-    cx = np.clip(cx, 0, cols - 1)
-    cy = np.clip(cy, 0, rows - 1)
-    vals = grid[cy[:, :, None], cx[:, None, :]] * (oky[:, :, None] & okx[:, None, :])
-    return vals.mean(axis=0)
+    return kernels.mean_scores(grid, float(origin[0]), float(origin[1]), FIELD_RES_M, pts,
+                               float(base[0]), float(base[1]), theta,
+                               tx.astype(np.intp), ty.astype(np.intp))
 
 
 def constraint_ratio(points: np.ndarray) -> float:
     """How well a set of points pins down a position, weakest direction over strongest
     (eigenvalues of the sum of n nᵀ over the points' normals): about 0 for the two walls of a
     corridor, which say nothing about the position along it."""
-    n = _normals_of(points)
+    n = PointIndex(points).normals(NORMAL_NEIGHBOURS)
     ev = np.linalg.eigvalsh(n.T @ n)
     return float(ev[0] / max(ev[1], 1e-12))
 
@@ -314,7 +310,7 @@ class LoopCloser:
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
             return False  # a corridor: it could be anywhere along it
-        field = self._field(i, radius)
+        field = self._field(i)
         guess = relative(self.pose(i), self.pose(k))
         match = correlative_match(field, query, guess, radius, window_deg)
         if (match.score < cfg.min_score
@@ -353,17 +349,15 @@ class LoopCloser:
         return np.concatenate([transform_points(relative(ref, self.pose(n)), self.points[n])
                                for n in nodes])
 
-    def _field(self, i: int, radius: float) -> LikelihoodField:
-        """Node i's submap as a likelihood field with room for a search of ``radius``
-        (cached; drawn again for a wider search)."""
-        margin = radius + COARSE_CELLS * FIELD_RES_M
+    def _field(self, i: int) -> LikelihoodField:
+        """Node i's submap as a likelihood field (cached)."""
         cached = self._fields.get(i)
-        if cached is not None and cached.margin >= margin:
+        if cached is not None:
             self._fields.move_to_end(i)
             return cached
         m = self.cfg.submap_nodes
         pts = self._submap(i, range(max(0, i - m), min(len(self.front), i + m + 1)))
-        field = likelihood_field(pts, margin)
+        field = likelihood_field(pts)
         self._fields[i] = field
         if len(self._fields) > 8:
             self._fields.popitem(last=False)

@@ -85,7 +85,7 @@ def test_correlative_match_finds_a_large_offset():
     """The place seen again 1.2 m and 9° away from where the drifted estimate says."""
     old = Pose2D(0.0, 0.0, 0.0)
     new = Pose2D(0.5, 0.3, math.radians(20))
-    field = likelihood_field(robot_points(old), 3.0)
+    field = likelihood_field(robot_points(old))
     true = relative(old, new)
     guess = Pose2D(true.x + 1.0, true.y - 0.7, true.theta + math.radians(9))
     m = correlative_match(field, robot_points(new), guess, 1.5, 12.0)
@@ -100,7 +100,7 @@ def test_match_in_a_corridor_is_ambiguous_along_it_and_stays_at_the_guess():
     r, _ = ray_cast(Pose2D(), ANGLES, corridor, np.zeros(2, int), np.zeros((0, 3)),
                     np.zeros(0, int), 20.0)
     scan = Scan(0.0, r, ANGLES, 20.0, Pose2D())
-    field = likelihood_field(scan_points(scan, 20.0), 3.0)  # the corridor seen before ...
+    field = likelihood_field(scan_points(scan, 20.0))  # the corridor seen before ...
     near = scan_points(scan, 6.0)  # ... and now only its near part: it fits anywhere along
     m = correlative_match(field, near, Pose2D(0.6, 0.1, 0.0), 2.0, 10.0)
     sx, sy, _ = np.sqrt(np.diag(m.cov))
