@@ -56,31 +56,13 @@ class Corner:
     convex: bool
 
 
-def _clusters(r: np.ndarray, ok: np.ndarray, cfg: CornerConfig) -> list[np.ndarray]:
-    """Index runs of consecutive valid beams without range jumps."""
-    idx = np.flatnonzero(ok)
-    if len(idx) == 0:
-        return []
-    gap = np.diff(idx) > 1
-    jump = np.abs(np.diff(r[idx])) > cfg.jump_m + cfg.jump_ratio * np.minimum(r[idx][:-1],
-                                                                             r[idx][1:])
-    cuts = np.flatnonzero(gap | jump) + 1
-    return [c for c in np.split(idx, cuts) if len(c) >= 2 * cfg.min_points]
-
-
 def detect_corners(ranges: np.ndarray, angles: np.ndarray, max_range: float,
                    cfg: CornerConfig) -> list[Corner]:
     """Corners of one scan (see the module docstring)."""
-    limit = min(cfg.max_range_m, 0.95 * max_range)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(ranges) & (ranges > 0.05) & (ranges < limit)
-    r = np.where(ok, ranges, 0.0)
-    pts_all = np.column_stack((r * np.cos(angles), r * np.sin(angles)))
-    cos_max = math.cos(math.radians(cfg.min_angle_deg))
-    corners = []
-    for cluster in _clusters(r, ok, cfg):
-        found = kernels.corners_of_cluster(
-            pts_all[cluster], cfg.split_tolerance_m, cfg.min_points, cfg.min_length_m,
-            cfg.max_fit_rms_m, cos_max, cfg.max_gap_m, limit, MAX_BEAMS_BETWEEN_SIDES)
-        corners += [Corner(x, y, convex) for x, y, convex in found]
-    return corners
+    found = kernels.detect_corners(
+        np.ascontiguousarray(ranges, dtype=np.float64),
+        np.ascontiguousarray(angles, dtype=np.float64), min(cfg.max_range_m, 0.95 * max_range),
+        cfg.jump_m, cfg.jump_ratio, cfg.split_tolerance_m, cfg.min_points, cfg.min_length_m,
+        cfg.max_fit_rms_m, math.cos(math.radians(cfg.min_angle_deg)), cfg.max_gap_m,
+        MAX_BEAMS_BETWEEN_SIDES)
+    return [Corner(x, y, convex) for x, y, convex in found]

@@ -59,7 +59,6 @@ class GridStack:
         self.origin_row = 0
         self.layers: dict[str, np.ndarray] = {n: np.zeros((0, 0), np.float32) for n in names}
         self.seen = np.zeros((0, 0), bool)
-        self._scratch = np.zeros(0, bool)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -92,7 +91,6 @@ class GridStack:
         seen = np.zeros(new_shape, bool)
         seen[dr:dr + rows, dc:dc + cols] = self.seen
         self.seen = seen
-        self._scratch = np.zeros(new_shape[0] * new_shape[1], bool)
         self.origin_row, self.origin_col = nr0, nc0
 
     def flat_index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -135,7 +133,7 @@ class GridStack:
         # often partly free, and marking it free from one angle and hit from another would
         # erode walls and flicker D.
         free, hit = kernels.trace_beams(
-            self._scratch.view(np.uint8), self.seen.reshape(-1).view(np.uint8), self.shape[1],
+            self.seen.reshape(-1).view(np.uint8), self.shape[1],
             self.resolution, self.origin_row, self.origin_col, *beams)
         return Observation(free=free, hit=hit)
 

@@ -27,7 +27,7 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] start
     cdef Py_ssize_t[::1] order
 
-    def __init__(self, points, double cell=0.2):
+    def __init__(self, points, double cell=0.1):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
@@ -54,25 +54,39 @@ cdef class PointIndex:
         return iy * self.nx + ix
 
     cdef Py_ssize_t nearest(self, double x, double y, double bound) noexcept nogil:
-        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index)."""
-        cdef Py_ssize_t ix0 = <Py_ssize_t>floor((x - bound - self.x0) / self.cell)
-        cdef Py_ssize_t ix1 = <Py_ssize_t>floor((x + bound - self.x0) / self.cell)
-        cdef Py_ssize_t iy0 = <Py_ssize_t>floor((y - bound - self.y0) / self.cell)
-        cdef Py_ssize_t iy1 = <Py_ssize_t>floor((y + bound - self.y0) / self.cell)
-        cdef Py_ssize_t ix, iy, k, j, b, best = -1
-        cdef double d2, dx, dy, best2 = bound * bound
-        for iy in range(max(iy0, 0), min(iy1 + 1, self.ny)):
-            for ix in range(max(ix0, 0), min(ix1 + 1, self.nx)):
-                b = iy * self.nx + ix
-                for k in range(self.start[b], self.start[b + 1]):
-                    j = self.order[k]
-                    dx = self.pts[j, 0] - x
-                    dy = self.pts[j, 1] - y
-                    d2 = dx * dx + dy * dy
-                    if d2 < best2 or (d2 == best2 and best >= 0 and j < best):
-                        best2 = d2
-                        best = j
-        return best
+        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index).
+        Rings of buckets around the query's, until no unsearched bucket can hold a nearer
+        point."""
+        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
+        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
+        cdef Py_ssize_t r = 0, ix, iy, q, j, b, best = -1, step
+        cdef double d2, dx, dy, reach, best2 = bound * bound
+        if (fx < -bound / self.cell or fy < -bound / self.cell
+                or fx > self.nx + bound / self.cell or fy > self.ny + bound / self.cell):
+            return -1
+        while True:
+            for iy in range(max(cy - r, 0), min(cy + r + 1, self.ny)):
+                # the ring's two ends in this row, or the whole row at its top and bottom
+                step = 1 if iy == cy - r or iy == cy + r else max(2 * r, 1)
+                ix = cx - r - step
+                while ix + step <= cx + r:
+                    ix += step
+                    if ix < 0 or ix >= self.nx:
+                        continue
+                    b = iy * self.nx + ix
+                    for q in range(self.start[b], self.start[b + 1]):
+                        j = self.order[q]
+                        dx = self.pts[j, 0] - x
+                        dy = self.pts[j, 1] - y
+                        d2 = dx * dx + dy * dy
+                        if d2 < best2 or (d2 == best2 and best >= 0 and j < best):
+                            best2 = d2
+                            best = j
+            reach = min(min(fx - (cx - r), cx + r + 1 - fx),
+                        min(fy - (cy - r), cy + r + 1 - fy)) * self.cell
+            if reach * reach >= best2:
+                return best
+            r += 1
 
     def normals(self, Py_ssize_t k):
         """Unit normal of every point: the direction of least spread of its k nearest
@@ -314,11 +328,41 @@ def split_runs(const double[:, ::1] p, Py_ssize_t lo, Py_ssize_t hi, double tol)
     return out
 
 
-def corners_of_cluster(const double[:, ::1] p, double tol, Py_ssize_t min_points,
-                       double min_length, double max_rms, double cos_max, double max_gap,
-                       double limit, Py_ssize_t max_beams_between):
-    """Corners (x, y, convex) where two adjacent good straight runs of one cluster meet."""
-    runs = split_runs(p, 0, p.shape[0] - 1, tol)
+def detect_corners(const double[::1] ranges, const double[::1] angles, double limit,
+                   double jump_m, double jump_ratio, double tol, Py_ssize_t min_points,
+                   double min_length, double max_rms, double cos_max, double max_gap,
+                   Py_ssize_t max_beams_between):
+    """Corners (x, y, convex) of one scan in the laser frame (see corners.py): clusters of
+    consecutive valid beams (range in (0.05, limit)) without range jumps, straight runs in
+    each, and corners where two adjacent good runs meet."""
+    cdef Py_ssize_t n = ranges.shape[0], i, start = 0
+    pts = np.zeros((n, 2))
+    cdef double[:, ::1] p = pts
+    valid = np.zeros(n, dtype=np.uint8)
+    cdef u8[::1] ok = valid
+    for i in range(n):
+        if ranges[i] > 0.05 and ranges[i] < limit:  # NaN fails both
+            ok[i] = 1
+            p[i, 0] = ranges[i] * cos(angles[i])
+            p[i, 1] = ranges[i] * sin(angles[i])
+    out = []
+    for i in range(1, n + 1):
+        if (i < n and ok[i] and ok[i - 1] and fabs(ranges[i] - ranges[i - 1])
+                <= jump_m + jump_ratio * min(ranges[i], ranges[i - 1])):
+            continue  # the cluster goes on
+        if ok[i - 1] and i - start >= 2 * min_points:
+            _corners_of_cluster(p, start, i - 1, tol, min_points, min_length, max_rms,
+                                cos_max, max_gap, limit, max_beams_between, out)
+        start = i
+    return out
+
+
+cdef _corners_of_cluster(const double[:, ::1] p, Py_ssize_t lo, Py_ssize_t hi, double tol,
+                         Py_ssize_t min_points, double min_length, double max_rms,
+                         double cos_max, double max_gap, double limit,
+                         Py_ssize_t max_beams_between, list out):
+    """Corners where two adjacent good straight runs of p[lo..hi] meet, appended to out."""
+    runs = split_runs(p, lo, hi, tol)
     cdef Py_ssize_t m = len(runs), k, prev = -1, a, b, a2, b2
     cdef double f[5]
     cdef double g[5]
@@ -337,7 +381,6 @@ def corners_of_cluster(const double[:, ::1] p, double tol, Py_ssize_t min_points
                 for t_i in range(5):
                     fv[k, t_i] = f[t_i]
                 gv[k] = 1
-    out = []
     for k in range(m):
         if not gv[k]:
             continue
@@ -368,7 +411,6 @@ def corners_of_cluster(const double[:, ::1] p, double tol, Py_ssize_t min_points
         side_c = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
         side_o = (bx - ax) * (0.0 - ay) - (by - ay) * (0.0 - ax)
         out.append((cx, cy, side_c * side_o > 0))
-    return out
 
 
 # -- beam tracing and the two-map update ----------------------------------------------------
@@ -408,62 +450,76 @@ def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
     return x0, y0, x1, y1
 
 
-def trace_beams(u8[::1] mark, u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0,
-                Py_ssize_t col0, double sx, double sy, double sth, const double[::1] ranges,
+def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_ssize_t col0,
+                double sx, double sy, double sth, const double[::1] ranges,
                 const double[::1] angles, double min_range, double max_range, double cap):
     """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
     hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
     of a hit (to the cap for no return), less any cell hit; each cell listed once. Marks them
-    in ``seen``; ``mark`` (all 0) is scratch. The grid must hold every beam (beam_extent)."""
-    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c
-    cdef double length, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
-    cdef bint hit_i
+    in ``seen``. The grid must hold every beam (see beam_extent)."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, u, v, bit
+    cdef Py_ssize_t umin, umax, vmin, vmax, w
+    cdef double length, ca, sa, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
+    cdef bint hit_i, new
     steps = np.zeros(n, dtype=np.intp)
     dirs = np.zeros((n, 2))
+    cells = np.full(n, -1, dtype=np.intp)
     cdef Py_ssize_t[::1] cnt = steps
+    cdef Py_ssize_t[::1] end = cells
     cdef double[:, ::1] dv = dirs
+    umin = umax = <Py_ssize_t>u0
+    vmin = vmax = <Py_ssize_t>v0
     for i in range(n):
         length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
         if length <= 0:
             continue
-        dv[i, 0] = cos(angles[i] + sth)
-        dv[i, 1] = sin(angles[i] + sth)
+        ca = cos(angles[i] + sth)
+        sa = sin(angles[i] + sth)
+        dv[i, 0] = ca
+        dv[i, 1] = sa
+        u = <Py_ssize_t>(u0 + length / res * ca)
+        v = <Py_ssize_t>(v0 + length / res * sa)
+        umin, umax, vmin, vmax = min(umin, u), max(umax, u), min(vmin, v), max(vmax, v)
         if hit_i:
-            c = flat_cell(sx + length * dv[i, 0], sy + length * dv[i, 1], res, row0, col0,
-                          cols)
-            if not mark[c]:
-                mark[c] = 1
-                nh += 1
+            end[i] = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
             length = max(length - res, 0.0)
         cnt[i] = <Py_ssize_t>ceil(length / res)
         total += cnt[i]
-    hit = np.empty(nh, dtype=np.intp)
-    free = np.empty(total, dtype=np.intp)
+    # which cells are listed: one bit per cell of the scan's bounding box (+1 cell for
+    # rounding), small enough to stay in cache
+    umin -= 1
+    vmin -= 1
+    w = umax - umin + 2
+    bits = np.zeros(((vmax - vmin + 2) * w + 7) // 8, dtype=np.uint8)
+    cdef u8[::1] listed = bits
+    hit = np.empty(n, dtype=np.intp)
+    free = np.empty(total + 1, dtype=np.intp)
     cdef Py_ssize_t[::1] hv = hit
     cdef Py_ssize_t[::1] fv = free
-    nh = 0
     for i in range(n):
-        length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
-        if hit_i:
-            c = flat_cell(sx + length * dv[i, 0], sy + length * dv[i, 1], res, row0, col0,
-                          cols)
-            if mark[c] == 1:
-                mark[c] = 3  # listed
+        c = end[i]
+        if c >= 0:
+            bit = (c // cols - vmin) * w + (c % cols - umin)
+            if not listed[bit >> 3] & (1 << (bit & 7)):
+                listed[bit >> 3] |= 1 << (bit & 7)
                 hv[nh] = c
                 nh += 1
+    for i in range(n):
+        ca = dv[i, 0]
+        sa = dv[i, 1]
         for k in range(cnt[i]):  # inside the grid: truncation is floor
-            c = (<Py_ssize_t>(v0 + k * dv[i, 1])) * cols + <Py_ssize_t>(u0 + k * dv[i, 0])
-            if not mark[c]:
-                mark[c] = 2
-                fv[nf] = c
-                nf += 1
+            v = <Py_ssize_t>(v0 + k * sa)
+            u = <Py_ssize_t>(u0 + k * ca)
+            bit = (v - vmin) * w + (u - umin)
+            new = not listed[bit >> 3] & (1 << (bit & 7))  # branch-free: half are new
+            listed[bit >> 3] |= 1 << (bit & 7)
+            fv[nf] = v * cols + u
+            nf += new
     for k in range(nh):
-        mark[hv[k]] = 0
         seen[hv[k]] = 1
     for k in range(nf):
-        mark[fv[k]] = 0
         seen[fv[k]] = 1
-    return free[:nf].copy(), hit
+    return free[:nf].copy(), hit[:nh].copy()
 
 
 def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
