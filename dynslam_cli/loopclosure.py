@@ -89,6 +89,8 @@ COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
 TOP_COARSE = 6
 ANGLE_STEP_DEG = 1.0
 NORMAL_NEIGHBOURS = 6
+ONLINE_ITERATIONS = 2  # Gauss-Newton steps per optimization while the log runs
+FINAL_ITERATIONS = 10
 
 
 def _field_kernels() -> tuple[np.ndarray, np.ndarray]:
@@ -125,10 +127,10 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     lo = points.min(axis=0) - FIELD_MARGIN_M
     hi = points.max(axis=0) + FIELD_MARGIN_M
     shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
-    cells = np.unique(np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp), axis=0)
+    col, row = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T
+    rows, cols = np.divmod(np.unique(row * shape[0] + col), shape[0])
     fine = np.zeros((shape[1], shape[0]))
     coarse = np.zeros((shape[1], shape[0]))
-    rows, cols = np.ascontiguousarray(cells[:, 1]), np.ascontiguousarray(cells[:, 0])
     kernels.splat_max(fine, rows, cols, FINE_KERNEL)
     kernels.splat_max(coarse, rows, cols, COARSE_KERNEL)
     index = PointIndex(points)
@@ -332,16 +334,17 @@ class LoopCloser:
         self.optimize()
         return True
 
-    def optimize(self) -> None:
-        """Optimize the graph (always once at the end, for the final trajectory)."""
-        self.graph.optimize()
+    def optimize(self, iterations: int = ONLINE_ITERATIONS) -> None:
+        """Gauss-Newton steps on the graph: a few while the log runs (the next closure goes
+        on from there), to convergence at the end."""
+        self.graph.optimize(iterations)
         self._pending = False
         self._fields.clear()  # the submaps were drawn with the old poses
 
     def finish(self) -> None:
-        """Optimize if closures are waiting (call once the log has ended)."""
-        if self._pending:
-            self.optimize()
+        """Optimize to convergence if any loop was closed (call once the log has ended)."""
+        if self.closures:
+            self.optimize(FINAL_ITERATIONS)
 
     def _submap(self, centre: int, nodes: range) -> np.ndarray:
         """Scan points of ``nodes`` in the frame of node ``centre`` (by the graph's poses)."""

@@ -76,15 +76,16 @@ class PoseGraph:
             chi2 = np.einsum("ka,kab,kb->k", err, info, err)
             w = np.where(robust, 1.0 / (1.0 + chi2 / cauchy_c ** 2), 1.0)
             winfo = info * w[:, None, None]
-            h_ij = np.einsum("kca,kcd,kdb->kab", a, winfo, b)
-            vals = np.concatenate([np.einsum("kca,kcd,kdb->kab", a, winfo, a).ravel(),
-                                   h_ij.ravel(), h_ij.transpose(0, 2, 1).ravel(),
-                                   np.einsum("kca,kcd,kdb->kab", b, winfo, b).ravel(),
+            at_w = a.transpose(0, 2, 1) @ winfo  # Aᵀ Ω, then Bᵀ Ω
+            bt_w = b.transpose(0, 2, 1) @ winfo
+            h_ij = at_w @ b
+            vals = np.concatenate([(at_w @ a).ravel(), h_ij.ravel(),
+                                   h_ij.transpose(0, 2, 1).ravel(), (bt_w @ b).ravel(),
                                    np.full(3, 1e12)])  # the first node's anchor
             h = coo_matrix((vals, (rows, cols)), shape=(3 * n, 3 * n)).tocsc()
-            g = np.bincount(g_index, np.concatenate([
-                np.einsum("kca,kcd,kd->ka", a, winfo, err).ravel(),
-                np.einsum("kca,kcd,kd->ka", b, winfo, err).ravel()]), minlength=3 * n)
+            g = np.bincount(g_index, np.concatenate([(at_w @ err[:, :, None]).ravel(),
+                                                     (bt_w @ err[:, :, None]).ravel()]),
+                            minlength=3 * n)
             step = -spsolve(h, g).reshape(-1, 3)
             self.poses += step
             self.poses[:, 2] = wrap_angles(self.poses[:, 2])
