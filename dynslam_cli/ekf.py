@@ -3,9 +3,9 @@
 State layout: ``x = [x_r, y_r, θ_r, l1x, l1y, l2x, l2y, ...]`` (metres, radians); ``cov`` its
 covariance. Each step of the maths is one function: the motion model and its Jacobians, the
 range-bearing measurement model and its Jacobian, Mahalanobis gating, augmentation with a new
-landmark, and the update. Updates use the symmetric form P − K S Kᵀ with S solved by Cholesky
-(no explicit inverse) and P kept symmetric; cost is O(n²) per observation because H touches
-only the robot and one landmark.
+landmark, and the update. Updates use the symmetric form P − K S Kᵀ (the 2×2 innovation
+covariance S inverted in closed form) and P kept symmetric; cost is O(n²) per observation
+because H touches only the robot and one landmark.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
 
 from dynslam_cli.geometry import wrap_angle
 
@@ -108,6 +107,12 @@ def innovation(z: np.ndarray, expected: np.ndarray) -> np.ndarray:
     return np.array([z[0] - expected[0], wrap_angle(z[1] - expected[1])])
 
 
+def _inverse_2x2(s: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite 2×2 matrix (the innovation covariance)."""
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    return np.array([[s[1, 1], -s[0, 1]], [-s[1, 0], s[0, 0]]]) / det
+
+
 # -- the filter -----------------------------------------------------------------------------
 class Ekf:
     """The joint Gaussian over robot pose and landmarks."""
@@ -149,7 +154,7 @@ class Ekf:
         sub = self.cov[np.ix_(idx, idx)]
         s = h @ sub @ h.T + measurement_noise(z, self.noise)
         nu = innovation(z, observe(self.x[:3], self.landmark(i)))
-        return float(nu @ np.linalg.solve(s, nu)), nu, s
+        return float(nu @ _inverse_2x2(s) @ nu), nu, s
 
     def update(self, i: int, z: np.ndarray) -> None:
         """Measurement update with observation z of landmark i."""
@@ -160,8 +165,7 @@ class Ekf:
         s = h @ w[idx] + measurement_noise(z, self.noise)
         s = 0.5 * (s + s.T)
         nu = innovation(z, observe(self.x[:3], self.landmark(i)))
-        factor = cho_factor(s)
-        k = cho_solve(factor, w.T).T  # n×2 = P Hᵀ S⁻¹
+        k = w @ _inverse_2x2(s)  # n×2 = P Hᵀ S⁻¹
         self.x += k @ nu
         self.x[2] = wrap_angle(self.x[2])
         cov -= k @ w.T

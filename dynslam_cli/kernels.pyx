@@ -602,3 +602,20 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
             for b in range(nx):
                 o[a, b] /= n
     return out
+
+
+def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t step,
+               double x, double y, double theta, double lo, double hi):
+    """End points (N×2) of every step-th beam whose range is in (lo, hi), seen from the pose
+    (x, y, θ) of the sensor."""
+    cdef Py_ssize_t n = ranges.shape[0], i, m = 0
+    out = np.empty(((n + step - 1) // step, 2))
+    cdef double[:, ::1] o = out
+    cdef double r
+    for i in range(0, n, step):
+        r = ranges[i]
+        if r > lo and r < hi:  # NaN fails both
+            o[m, 0] = x + r * cos(angles[i] + theta)
+            o[m, 1] = y + r * sin(angles[i] + theta)
+            m += 1
+    return out[:m].copy()

@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.linalg import spsolve
 
 from dynslam_cli.geometry import wrap_angles
 
@@ -62,6 +60,9 @@ class PoseGraph:
         """Gauss-Newton over all nodes but the first (held where it is)."""
         if not self.edges.i:
             return
+        from scipy.sparse import coo_matrix  # imported here: 0.13 s, and only loops need it
+        from scipy.sparse.linalg import spsolve
+
         i = np.asarray(self.edges.i)
         j = np.asarray(self.edges.j)
         z = np.asarray(self.edges.z)

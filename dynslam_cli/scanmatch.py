@@ -58,12 +58,13 @@ class MatchConfig:
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
-    """Valid end points in the robot frame (N×2)."""
-    r, a = scan.ranges[::step], scan.angles[::step]
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(r) & (r > 0.05) & (r < min(max_range, scan.max_range))
-    r, a = r[ok], a[ok] + scan.laser.theta
-    return np.column_stack((scan.laser.x + r * np.cos(a), scan.laser.y + r * np.sin(a)))
+    """Valid end points (range in (0.05 m, max range)) of every step-th beam, in the robot
+    frame (N×2)."""
+    laser = scan.laser
+    return kernels.end_points(np.ascontiguousarray(scan.ranges, dtype=np.float64),
+                              np.ascontiguousarray(scan.angles, dtype=np.float64), step,
+                              laser.x, laser.y, laser.theta, 0.05,
+                              min(max_range, scan.max_range))
 
 
 def _normals(pts: np.ndarray) -> np.ndarray:
