@@ -6,10 +6,11 @@ BIN := $(VENV)/bin
 
 install: $(BIN)/dynslam
 
-$(BIN)/dynslam: pyproject.toml
+$(BIN)/dynslam: pyproject.toml setup.py dynslam_cli/kernels.pyx
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/python -m compileall -q dynslam_cli formats  # bytecode now, not at every start
 	@touch $@
 
 test: install

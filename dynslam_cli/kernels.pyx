@@ -5,8 +5,9 @@
 Each function here is a loop that numpy can only express with many small array operations
 per scan (ICP's correspondences and normal equations, the corner detector's split-and-fit,
 the cells a beam passes through). The algorithms, and their documentation, live in the
-Python modules that call them: ``scanmatch``, ``corners``, ``grid``. No fast-math: results
-are the same on every run.
+Python modules that call them: ``scanmatch``, ``corners``, ``grid``, ``dynamic``,
+``loopclosure``. No fast-math: results are the same on every run. The long loops release
+the GIL, so threads (a Dask worker's, say) can process several logs at once.
 """
 
 import numpy as np
@@ -27,7 +28,7 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] start
     cdef Py_ssize_t[::1] order
 
-    def __init__(self, points, double cell=0.1):
+    def __init__(self, points, double cell=0.25):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
@@ -203,10 +204,24 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
         double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
         double wx, double wy, double wth, double sigma):
-    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, converged_ok)."""
+    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, ok)."""
+    cdef double out[5]
+    cdef bint ok
+    with nogil:
+        ok = _icp(index, normals, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
+                  wth, sigma, out)
+    if not ok:
+        return gx, gy, gth, 0.0, INFINITY, False
+    return out[0], out[1], out[2], out[3], out[4], True
+
+
+cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
+               double gx, double gy, double gth, int iterations, double gate_max,
+               double gate_min, double wx, double wy, double wth, double sigma,
+               double out[5]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
     cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
-    cdef double jx, jy, jt, share = 0.0, rms = INFINITY, sq
+    cdef double share = 0.0, rms = INFINITY, sq
     cdef double a[3][3]
     cdef double b[3]
     cdef double d[3]
@@ -245,7 +260,7 @@ def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts
             sq += r * r
         share = used / <double>n if n else 0.0
         if used < 10:
-            return gx, gy, gth, 0.0, INFINITY, False
+            return False
         a[0][0] += wx + 1e-9
         a[1][1] += wy + 1e-9
         a[2][2] += wth + 1e-9
@@ -253,14 +268,19 @@ def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts
         b[1] += wy * (y - gy)
         b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
         if not solve3(a, b, d):
-            return gx, gy, gth, 0.0, INFINITY, False
+            return False
         x -= d[0]
         y -= d[1]
         th -= d[2]
         rms = sqrt(sq / used)
         if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
             break
-    return x, y, remainder(th, 2 * 3.141592653589793), share, rms, True
+    out[0] = x
+    out[1] = y
+    out[2] = remainder(th, 2 * 3.141592653589793)
+    out[3] = share
+    out[4] = rms
+    return True
 
 
 # -- corners --------------------------------------------------------------------------------
@@ -496,6 +516,24 @@ def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_s
     free = np.empty(total + 1, dtype=np.intp)
     cdef Py_ssize_t[::1] hv = hit
     cdef Py_ssize_t[::1] fv = free
+    with nogil:
+        _list_cells(end, cnt, dv, listed, hv, fv, &nh, &nf, n, cols, vmin, umin, w, u0, v0)
+        for k in range(nh):
+            seen[hv[k]] = 1
+        for k in range(nf):
+            seen[fv[k]] = 1
+    return free[:nf].copy(), hit[:nh].copy()
+
+
+cdef void _list_cells(const Py_ssize_t[::1] end, const Py_ssize_t[::1] cnt,
+                      const double[:, ::1] dv, u8[::1] listed, Py_ssize_t[::1] hv,
+                      Py_ssize_t[::1] fv, Py_ssize_t* n_hit, Py_ssize_t* n_free, Py_ssize_t n,
+                      Py_ssize_t cols, Py_ssize_t vmin, Py_ssize_t umin, Py_ssize_t w,
+                      double u0, double v0) noexcept nogil:
+    """trace_beams' inner loops: each hit cell, then each free sample, listed once."""
+    cdef Py_ssize_t i, k, c, u, v, bit, nh = 0, nf = 0
+    cdef double ca, sa
+    cdef bint new
     for i in range(n):
         c = end[i]
         if c >= 0:
@@ -515,11 +553,8 @@ def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_s
             listed[bit >> 3] |= 1 << (bit & 7)
             fv[nf] = v * cols + u
             nf += new
-    for k in range(nh):
-        seen[hv[k]] = 1
-    for k in range(nf):
-        seen[fv[k]] = 1
-    return free[:nf].copy(), hit[:nh].copy()
+    n_hit[0] = nh
+    n_free[0] = nf
 
 
 def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
@@ -531,17 +566,18 @@ def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
     cdef bint occupied, free
     out = np.empty(n, dtype=np.int8)
     cdef signed char[::1] o = out
-    for i in range(n):
-        occupied = False
-        free = True
-        for k in range(m):
-            v = logodds[cells[i] + offsets[k]]
-            if v > high:
-                occupied = True
-                break
-            if not v < low:
-                free = False
-        o[i] = 2 if occupied else 0 if free else 1
+    with nogil:
+        for i in range(n):
+            occupied = False
+            free = True
+            for k in range(m):
+                v = logodds[cells[i] + offsets[k]]
+                if v > high:
+                    occupied = True
+                    break
+                if not v < low:
+                    free = False
+            o[i] = 2 if occupied else 0 if free else 1
     return out
 
 
@@ -550,10 +586,11 @@ def add_clamped(float[::1] logodds, const Py_ssize_t[::1] cells,
     """logodds[cell] += value[state of the cell], clamped to [lo, hi] (cells listed once)."""
     cdef Py_ssize_t i, c
     cdef double v
-    for i in range(cells.shape[0]):
-        c = cells[i]
-        v = logodds[c] + value[states[i]]
-        logodds[c] = <float>(lo if v < lo else hi if v > hi else v)
+    with nogil:
+        for i in range(cells.shape[0]):
+            c = cells[i]
+            v = logodds[c] + value[states[i]]
+            logodds[c] = <float>(lo if v < lo else hi if v > hi else v)
 
 
 # -- correlative matching (loop closure) ----------------------------------------------------

@@ -91,6 +91,8 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
+        self._offsets_for = -1
+        self._offsets_cache = np.zeros(0, np.intp)
         self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
                                                                       self._table_2)
                                       if t is not None)
@@ -111,9 +113,17 @@ class DynamicMapper:
         cells, inside = g.flat_index_inside(positions[:, 0], positions[:, 1], self._radius)
         states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
         states[inside] = classify_neighbourhood(
-            g.layers["static"].reshape(-1), cells, neighbourhood_offsets(self._radius, g.shape[1]),
+            g.layers["static"].reshape(-1), cells, self._offsets(),
             m.free_threshold, m.occupied_threshold)
         return states
+
+    def _offsets(self) -> np.ndarray:
+        """The neighbourhood's flat-index offsets for the grid's current width."""
+        cols = self.grids.shape[1]
+        if self._offsets_for != cols:
+            self._offsets_cache = neighbourhood_offsets(self._radius, cols)
+            self._offsets_for = cols
+        return self._offsets_cache
 
     def observe(self, pose: Pose2D, scan: Scan) -> Observation:
         """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
@@ -133,8 +143,7 @@ class DynamicMapper:
             free_prev = np.zeros(len(obs.free), np.int8)
         else:
             free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
-        offsets = neighbourhood_offsets(self._radius, self.grids.shape[1])
-        hit_prev = classify_neighbourhood(s, obs.hit, offsets, m.free_threshold,
+        hit_prev = classify_neighbourhood(s, obs.hit, self._offsets(), m.free_threshold,
                                           m.occupied_threshold)
         return free_prev, hit_prev
 

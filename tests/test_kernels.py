@@ -1,0 +1,97 @@
+"""The compiled kernels against plain numpy versions of the same definitions."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from dynslam_cli import kernels
+from dynslam_cli.grid import GridStack
+from dynslam_cli.kernels import PointIndex
+from dynslam_cli.types import Pose2D
+
+RNG = np.random.default_rng(7)
+
+
+def brute_nearest(points: np.ndarray, q: np.ndarray, bound: float) -> np.ndarray:
+    d = np.hypot(points[None, :, 0] - q[:, None, 0], points[None, :, 1] - q[:, None, 1])
+    best = d.argmin(axis=1)
+    return np.where(d[np.arange(len(q)), best] < bound, best, -1)
+
+
+@pytest.mark.parametrize("bound", [0.05, 0.3, 1.7])
+def test_nearest_point_matches_brute_force(bound):
+    # clustered points (walls) and scattered ones, queries inside and outside their extent
+    wall = np.column_stack((np.linspace(0, 5, 400), 2 + 0.01 * RNG.standard_normal(400)))
+    points = np.vstack((wall, RNG.uniform(-3, 8, (300, 2))))
+    queries = RNG.uniform(-5, 10, (2000, 2))
+    got = PointIndex(points).query(queries, bound)
+    np.testing.assert_array_equal(got, brute_nearest(points, queries, bound))
+
+
+def test_normals_are_the_least_spread_direction_of_the_k_nearest():
+    points = RNG.uniform(0, 4, (500, 2))
+    k = 6
+    got = PointIndex(points).normals(k)
+    d = np.hypot(points[None, :, 0] - points[:, None, 0], points[None, :, 1] - points[:, None, 1])
+    for i in range(len(points)):
+        nb = points[np.argsort(d[i], kind="stable")[:k]]
+        _, vecs = np.linalg.eigh(np.cov(nb.T))
+        assert abs(got[i] @ vecs[:, 0]) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_traced_cells_match_sampling_each_beam_every_cell():
+    g = GridStack(0.05, 1.0, ("static",))
+    n = 361
+    angles = np.linspace(-math.pi / 2, math.pi / 2, n)
+    ranges = RNG.uniform(0.5, 12.0, n)
+    ranges[::17] = math.inf  # no return: cleared to the cap
+    ranges[5::23] = math.nan  # invalid: ignored
+    sensor = Pose2D(3.21, -1.7, 0.4)
+    obs = g.observe(sensor, ranges, angles, 30.0, 0.02, 8.0)
+    assert len(np.unique(obs.free)) == len(obs.free)
+    assert len(np.unique(obs.hit)) == len(obs.hit)
+    assert not set(obs.free) & set(obs.hit)
+
+    res, cols = g.resolution, g.shape[1]
+
+    def cell(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return ((np.floor(y / res).astype(int) - g.origin_row) * cols
+                + np.floor(x / res).astype(int) - g.origin_col)
+
+    a = angles + sensor.theta
+    hit_beam = np.isfinite(ranges) & (ranges < 30.0)
+    hits = set(cell(sensor.x + ranges[hit_beam] * np.cos(a[hit_beam]),
+                    sensor.y + ranges[hit_beam] * np.sin(a[hit_beam])))
+    free = set()
+    for r, ang, is_hit in zip(ranges, a, hit_beam, strict=True):
+        if math.isnan(r):
+            continue
+        length = max(r - res, 0.0) if is_hit else 8.0
+        d = np.arange(math.ceil(length / res)) * res
+        free |= set(cell(sensor.x + d * math.cos(ang), sensor.y + d * math.sin(ang)))
+    assert set(obs.hit) == hits
+    # the kernel steps in cell units from the sensor's cell position; a sample exactly on a
+    # cell border may round the other way, so allow a handful of such cells
+    assert len(set(obs.free) ^ (free - hits)) <= 0.002 * len(free)
+    assert g.seen.reshape(-1)[obs.free].all() and g.seen.reshape(-1)[obs.hit].all()
+
+
+def test_mean_scores_match_numpy():
+    grid = RNG.uniform(0, 1, (60, 80))
+    pts = RNG.uniform(-1, 1, (50, 2))
+    tx, ty = np.arange(-5, 6), np.arange(-3, 4)
+    got = kernels.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, 0.3, tx, ty)
+    c, s = math.cos(0.3), math.sin(0.3)
+    moved = np.column_stack((1.0 + c * pts[:, 0] - s * pts[:, 1],
+                             1.2 + s * pts[:, 0] + c * pts[:, 1]))
+    ix, iy = np.floor((moved - [0.2, -0.1]) / 0.05 + 0.5).astype(int).T
+    want = np.zeros((len(ty), len(tx)))
+    for a, dy in enumerate(ty):
+        for b, dx in enumerate(tx):
+            r, cc = iy + dy, ix + dx
+            ok = (r >= 0) & (r < 60) & (cc >= 0) & (cc < 80)
+            want[a, b] = grid[r[ok], cc[ok]].sum() / len(pts)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
