@@ -55,16 +55,20 @@ cdef class PointIndex:
         return iy * self.nx + ix
 
     cdef Py_ssize_t nearest(self, double x, double y, double bound) noexcept nogil:
-        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index).
-        Rings of buckets around the query's, until no unsearched bucket can hold a nearer
-        point."""
+        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index)."""
+        cdef Py_ssize_t j
+        cdef double d2
+        return j if self._search(x, y, 1, bound * bound, &j, &d2) else -1
+
+    cdef Py_ssize_t _search(self, double x, double y, Py_ssize_t k, double bound2,
+                            Py_ssize_t* idx, double* d2s) noexcept nogil:
+        """The (up to) k nearest points closer than sqrt(bound2), nearest first (ties: the
+        lower index), into idx and d2s; returns how many. Searches rings of buckets around
+        the query's until no unsearched bucket can hold a nearer point."""
         cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
         cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
-        cdef Py_ssize_t r = 0, ix, iy, q, j, b, best = -1, step
-        cdef double d2, dx, dy, reach, best2 = bound * bound
-        if (fx < -bound / self.cell or fy < -bound / self.cell
-                or fx > self.nx + bound / self.cell or fy > self.ny + bound / self.cell):
-            return -1
+        cdef Py_ssize_t r = 0, found = 0, ix, iy, b, q, j, m, step
+        cdef double d2, dx, dy, reach, worst
         while True:
             for iy in range(max(cy - r, 0), min(cy + r + 1, self.ny)):
                 # the ring's two ends in this row, or the whole row at its top and bottom
@@ -80,13 +84,26 @@ cdef class PointIndex:
                         dx = self.pts[j, 0] - x
                         dy = self.pts[j, 1] - y
                         d2 = dx * dx + dy * dy
-                        if d2 < best2 or (d2 == best2 and best >= 0 and j < best):
-                            best2 = d2
-                            best = j
+                        if d2 >= bound2 or (found == k and (d2 > d2s[k - 1] or (
+                                d2 == d2s[k - 1] and j > idx[k - 1]))):
+                            continue
+                        m = found if found < k else k - 1  # insert, dropping the k-th
+                        while m > 0 and (d2s[m - 1] > d2
+                                         or (d2s[m - 1] == d2 and idx[m - 1] > j)):
+                            d2s[m] = d2s[m - 1]
+                            idx[m] = idx[m - 1]
+                            m -= 1
+                        d2s[m] = d2
+                        idx[m] = j
+                        if found < k:
+                            found += 1
             reach = min(min(fx - (cx - r), cx + r + 1 - fx),
                         min(fy - (cy - r), cy + r + 1 - fy)) * self.cell
-            if reach * reach >= best2:
-                return best
+            worst = d2s[k - 1] if found == k else bound2
+            if reach * reach >= worst:
+                return found
+            if cx - r <= 0 and cy - r <= 0 and cx + r >= self.nx - 1 and cy + r >= self.ny - 1:
+                return found  # the whole grid is searched
             r += 1
 
     def normals(self, Py_ssize_t k):
@@ -101,7 +118,7 @@ cdef class PointIndex:
         cdef double[::1] dv = dist
         cdef double mx, my, sxx, syy, sxy, dx, dy, a
         for i in range(n):
-            self._knn(self.pts[i, 0], self.pts[i, 1], kk, &iv[0], &dv[0])
+            self._search(self.pts[i, 0], self.pts[i, 1], kk, INFINITY, &iv[0], &dv[0])
             mx = my = 0.0
             for m in range(kk):
                 mx += self.pts[iv[m], 0]
@@ -119,48 +136,6 @@ cdef class PointIndex:
             o[i, 0] = cos(a)
             o[i, 1] = sin(a)
         return out
-
-    cdef void _knn(self, double x, double y, Py_ssize_t k, Py_ssize_t* idx, double* d2s
-                   ) noexcept nogil:
-        """The k nearest points (k ≤ number of points), nearest first, by rings of buckets
-        until no unsearched bucket can hold a nearer one."""
-        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
-        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
-        cdef Py_ssize_t r = 0, found = 0, ix, iy, b, q, j, m
-        cdef double d2, dx, dy, reach
-        while True:
-            for iy in range(cy - r, cy + r + 1):
-                if iy < 0 or iy >= self.ny:
-                    continue
-                for ix in range(cx - r, cx + r + 1):
-                    if ix < 0 or ix >= self.nx or (r > 0 and cx - r < ix < cx + r
-                                                   and cy - r < iy < cy + r):
-                        continue  # outside the grid, or searched in an earlier ring
-                    b = iy * self.nx + ix
-                    for q in range(self.start[b], self.start[b + 1]):
-                        j = self.order[q]
-                        dx = self.pts[j, 0] - x
-                        dy = self.pts[j, 1] - y
-                        d2 = dx * dx + dy * dy
-                        if found == k and d2 >= d2s[k - 1]:
-                            continue
-                        m = found if found < k else k - 1
-                        while m > 0 and (d2s[m - 1] > d2
-                                         or (d2s[m - 1] == d2 and idx[m - 1] > j)):
-                            d2s[m] = d2s[m - 1]
-                            idx[m] = idx[m - 1]
-                            m -= 1
-                        d2s[m] = d2
-                        idx[m] = j
-                        if found < k:
-                            found += 1
-            reach = min(min(fx - (cx - r), cx + r + 1 - fx),
-                        min(fy - (cy - r), cy + r + 1 - fy)) * self.cell
-            if found == k and d2s[k - 1] <= reach * reach:
-                return
-            if cx - r <= 0 and cy - r <= 0 and cx + r >= self.nx - 1 and cy + r >= self.ny - 1:
-                return  # the whole grid is searched
-            r += 1
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""

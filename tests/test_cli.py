@@ -84,9 +84,11 @@ def test_interrupt_leaves_nothing_and_exits_130(tmp_path):
     import signal
     import time
 
+    # (a shell's background job inherits SIGINT ignored: give the child the default back)
     proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "process", "-", "-o",
                              str(tmp_path / "out"), "-q"], stdin=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
+                            stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert proc.stdin is not None
     proc.stdin.write("".join(flaser(t=i) for i in range(1, 500)).encode())
     proc.stdin.flush()
