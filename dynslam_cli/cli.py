@@ -141,20 +141,24 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
 def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
              config: Any, quiet: bool, snapshot_every: float | None) -> dict[str, Any]:
-    from tqdm import tqdm
-
     from dynslam_cli.job import process_log
 
-    with tqdm(unit="B", unit_scale=True, disable=quiet or None, desc=Path(log).name,
-              file=sys.stderr, leave=False) as bar:
-
-        def on_progress(done: int, total: int) -> None:
-            if total and bar.total != total:
-                bar.total = total
-            bar.update(done - bar.n)
-
+    if quiet or not sys.stderr.isatty():  # no progress bar (and no tqdm import)
         summary, stats = process_log(log, target, force, options, config, format_name,
-                                     snapshot_every, on_progress)
+                                     snapshot_every)
+    else:
+        from tqdm import tqdm
+
+        with tqdm(unit="B", unit_scale=True, desc=Path(log).name, file=sys.stderr,
+                  leave=False) as bar:
+
+            def on_progress(done: int, total: int) -> None:
+                if total and bar.total != total:
+                    bar.total = total
+                bar.update(done - bar.n)
+
+            summary, stats = process_log(log, target, force, options, config, format_name,
+                                         snapshot_every, on_progress)
     _report_warnings(summary["input"]["path"], stats)
     return summary
 

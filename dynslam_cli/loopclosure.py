@@ -127,8 +127,7 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     lo = points.min(axis=0) - FIELD_MARGIN_M
     hi = points.max(axis=0) + FIELD_MARGIN_M
     shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
-    col, row = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T
-    rows, cols = np.divmod(np.unique(row * shape[0] + col), shape[0])
+    cols, rows = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T.copy()
     fine = np.zeros((shape[1], shape[0]))
     coarse = np.zeros((shape[1], shape[0]))
     kernels.splat_max(fine, rows, cols, FINE_KERNEL)

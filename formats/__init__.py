@@ -9,9 +9,8 @@ from __future__ import annotations
 import functools
 import importlib
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +67,8 @@ PLUGIN_GROUP = "dynslam.readers"
 def all_readers() -> tuple[ReaderEntry, ...]:
     """The built-in table, then readers other installed packages register under the
     ``dynslam.readers`` entry-point group (each entry point names a :class:`ReaderEntry`)."""
+    from importlib.metadata import entry_points  # 25 ms: only when plugins are consulted
+
     plugins = []
     for ep in sorted(entry_points(group=PLUGIN_GROUP), key=lambda e: e.name):
         try:
@@ -84,6 +85,12 @@ def all_readers() -> tuple[ReaderEntry, ...]:
     return READERS + tuple(plugins)
 
 
+def _in_order() -> Iterator[ReaderEntry]:
+    """:func:`all_readers` in order, loading the plugins only once the table is exhausted."""
+    yield from READERS
+    yield from all_readers()[len(READERS):]
+
+
 def reader_names() -> list[str]:
     return [entry.name for entry in all_readers()]
 
@@ -91,15 +98,15 @@ def reader_names() -> list[str]:
 def detect_format(source: Source) -> ReaderEntry:
     """The table entry whose sniffer accepts the content, else whose suffix matches."""
     if source.is_dir:
-        for entry in all_readers():
+        for entry in _in_order():
             if entry.folder_marker and (Path(source.path) / entry.folder_marker).exists():
                 return entry
         raise InputError(source.name, "a folder, but not a ROS2 bag (no metadata.yaml)")
-    for entry in all_readers():
+    for entry in _in_order():
         if source.head and entry.sniff(source.head):
             return entry
     stem = source.path[:-3] if source.path.endswith(".gz") else source.path
-    for entry in all_readers():
+    for entry in _in_order():
         if any(stem.endswith(s) for s in entry.suffixes):
             return entry
     if not source.head:

@@ -117,10 +117,13 @@ def test_truncated_bag_is_a_clear_error(simulated, cli, tmp_path, fmt):
 
 
 def test_reader_plugin_from_entry_point(cli, tmp_path, monkeypatch):
+    import importlib.metadata
+
     import formats
 
     ep = EntryPoint("linescan", "tests.plugin_example:ENTRY", formats.PLUGIN_GROUP)
-    monkeypatch.setattr(formats, "entry_points", lambda group: [ep] if group == ep.group else [])
+    monkeypatch.setattr(importlib.metadata, "entry_points",
+                        lambda group: [ep] if group == ep.group else [])
     formats.all_readers.cache_clear()
     try:
         log = tmp_path / "run.linescan"
