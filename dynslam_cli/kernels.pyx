@@ -572,17 +572,23 @@ def add_clamped(float[::1] logodds, const Py_ssize_t[::1] cells,
 
 def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[::1] cols,
               const double[:, ::1] kernel):
-    """grid[r + i, c + j] = max(itself, kernel[i + h, j + h]) around every (r, c), with
-    h = kernel's half width (cells off the grid are skipped)."""
+    """grid[r + i, c + j] = max(itself, kernel[i + h, j + h]) around every distinct (r, c),
+    with h = kernel's half width (cells off the grid are skipped; (r, c) must be on it)."""
     cdef Py_ssize_t h = kernel.shape[0] // 2, n = rows.shape[0], k, i, j, r, c
     cdef Py_ssize_t nr = grid.shape[0], nc = grid.shape[1]
-    for k in range(n):
-        for i in range(max(-h, -rows[k]), min(h + 1, nr - rows[k])):
-            r = rows[k] + i
-            for j in range(max(-h, -cols[k]), min(h + 1, nc - cols[k])):
-                c = cols[k] + j
-                if kernel[i + h, j + h] > grid[r, c]:
-                    grid[r, c] = kernel[i + h, j + h]
+    done = np.zeros(nr * nc, dtype=np.uint8)
+    cdef u8[::1] seen = done
+    with nogil:
+        for k in range(n):
+            if seen[rows[k] * nc + cols[k]]:
+                continue  # a repeat: the same splat again would change nothing
+            seen[rows[k] * nc + cols[k]] = 1
+            for i in range(max(-h, -rows[k]), min(h + 1, nr - rows[k])):
+                r = rows[k] + i
+                for j in range(max(-h, -cols[k]), min(h + 1, nc - cols[k])):
+                    c = cols[k] + j
+                    if kernel[i + h, j + h] > grid[r, c]:
+                        grid[r, c] = kernel[i + h, j + h]
 
 
 def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
