@@ -592,33 +592,37 @@ def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[
 
 
 def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
-                const double[:, ::1] pts, double x, double y, double theta,
+                const double[:, ::1] pts, double x, double y, const double[::1] thetas,
                 const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty):
-    """Mean grid value of ``pts`` turned by θ and moved to (x, y) plus (tx, ty) cells, for
-    every (ty, tx) pair (shape len(ty) × len(tx)); points off the grid count 0. The grid's
-    cell (0, 0) is centred on (ox, oy)."""
-    cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c
+    """Mean grid value of ``pts`` turned by each θ and moved to (x, y) plus (tx, ty) cells:
+    shape len(thetas) × len(ty) × len(tx); points off the grid count 0. The grid's cell
+    (0, 0) is centred on (ox, oy)."""
+    cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c, t
     cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy
-    cdef double ct = cos(theta), st = sin(theta), px, py
-    out = np.zeros((ny, nx))
-    cdef double[:, ::1] o = out
-    for k in range(n):
-        px = x + ct * pts[k, 0] - st * pts[k, 1]
-        py = y + st * pts[k, 0] + ct * pts[k, 1]
-        ix = <Py_ssize_t>floor((px - ox) / res + 0.5)
-        iy = <Py_ssize_t>floor((py - oy) / res + 0.5)
-        for a in range(ny):
-            r = iy + ty[a]
-            if r < 0 or r >= rows:
-                continue
-            for b in range(nx):
-                c = ix + tx[b]
-                if 0 <= c < cols:
-                    o[a, b] += grid[r, c]
-    if n:
-        for a in range(ny):
-            for b in range(nx):
-                o[a, b] /= n
+    cdef double ct, st, px, py
+    out = np.zeros((thetas.shape[0], ny, nx))
+    cdef double[:, :, ::1] o = out
+    with nogil:
+        for t in range(thetas.shape[0]):
+            ct = cos(thetas[t])
+            st = sin(thetas[t])
+            for k in range(n):
+                px = x + ct * pts[k, 0] - st * pts[k, 1]
+                py = y + st * pts[k, 0] + ct * pts[k, 1]
+                ix = <Py_ssize_t>floor((px - ox) / res + 0.5)
+                iy = <Py_ssize_t>floor((py - oy) / res + 0.5)
+                for a in range(ny):
+                    r = iy + ty[a]
+                    if r < 0 or r >= rows:
+                        continue
+                    for b in range(nx):
+                        c = ix + tx[b]
+                        if 0 <= c < cols:
+                            o[t, a, b] += grid[r, c]
+            if n:
+                for a in range(ny):
+                    for b in range(nx):
+                        o[t, a, b] /= n
     return out
 
 

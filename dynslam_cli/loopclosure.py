@@ -136,12 +136,12 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     return LikelihoodField(fine, coarse, lo, points, index.normals(NORMAL_NEIGHBOURS), index)
 
 
-def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, theta: float,
+def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
             base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
-    """Mean field value of ``pts`` rotated by θ and moved to base + (tx, ty) cells, for every
-    (ty, tx) pair: an array of shape (len(ty), len(tx))."""
+    """Mean field value of ``pts`` rotated by each θ and moved to base + (tx, ty) cells, for
+    every (θ, ty, tx): an array of shape (len(thetas), len(ty), len(tx))."""
     return kernels.mean_scores(grid, float(origin[0]), float(origin[1]), FIELD_RES_M, pts,
-                               float(base[0]), float(base[1]), theta,
+                               float(base[0]), float(base[1]), thetas,
                                tx.astype(np.intp), ty.astype(np.intp))
 
 
@@ -175,8 +175,8 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
     n_ang = math.ceil(window_deg / ANGLE_STEP_DEG)
     dthetas = np.radians(np.arange(-n_ang, n_ang + 1) * ANGLE_STEP_DEG)
     base = np.array([guess.x, guess.y])
-    bounds = np.stack([_scores(field.coarse, field.origin, pts, guess.theta + d, base,
-                               coarse_t, coarse_t) for d in dthetas])
+    bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base, coarse_t,
+                     coarse_t)
     t_m = coarse_t * FIELD_RES_M
     ranked = bounds * _preference(t_m[None, None, :], t_m[None, :, None],
                                   dthetas[:, None, None], window_m, window_deg)
@@ -188,9 +188,9 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
         if ranked[a, r, c] <= best[0]:
             break  # the coarse score bounds every fine score below it
         tx, ty = coarse_t[c] + fine_t, coarse_t[r] + fine_t
-        for sub in sub_angles:
-            th = dthetas[a] + sub
-            sc = _scores(field.fine, field.origin, pts, guess.theta + th, base, tx, ty)
+        ths = dthetas[a] + sub_angles
+        fine = _scores(field.fine, field.origin, pts, guess.theta + ths, base, tx, ty)
+        for th, sc in zip(ths, fine, strict=True):
             w = sc * _preference(tx[None, :] * FIELD_RES_M, ty[:, None] * FIELD_RES_M, th,
                                  window_m, window_deg)
             i, j = np.unravel_index(int(np.argmax(w)), w.shape)
@@ -268,7 +268,7 @@ class LoopCloser:
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
         cov = motion_noise(np.array([z.x, z.y, z.theta]), self.ekf.noise)
-        info = np.linalg.inv(cov * self.cfg.chain_noise_scale ** 2)
+        info = np.diag(1.0 / (np.diag(cov) * self.cfg.chain_noise_scale ** 2))  # cov is diagonal
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
         step = math.hypot(z.x, z.y)
         self._append(front_pose, points, self.path[-1] + step)

@@ -83,7 +83,7 @@ def test_mean_scores_match_numpy():
     grid = RNG.uniform(0, 1, (60, 80))
     pts = RNG.uniform(-1, 1, (50, 2))
     tx, ty = np.arange(-5, 6), np.arange(-3, 4)
-    got = kernels.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, 0.3, tx, ty)
+    got = kernels.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, np.array([0.3]), tx, ty)[0]
     c, s = math.cos(0.3), math.sin(0.3)
     moved = np.column_stack((1.0 + c * pts[:, 0] - s * pts[:, 1],
                              1.2 + s * pts[:, 0] + c * pts[:, 1]))
