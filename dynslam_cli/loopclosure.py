@@ -89,7 +89,7 @@ COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
 TOP_COARSE = 6
 ANGLE_STEP_DEG = 1.0
 NORMAL_NEIGHBOURS = 6
-ONLINE_ITERATIONS = 2  # Gauss-Newton steps per optimization while the log runs
+ONLINE_ITERATIONS = 1  # Gauss-Newton steps per optimization while the log runs
 FINAL_ITERATIONS = 10
 
 
