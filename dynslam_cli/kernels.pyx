@@ -27,6 +27,7 @@ cdef class PointIndex:
     cdef Py_ssize_t nx, ny
     cdef Py_ssize_t[::1] start
     cdef Py_ssize_t[::1] order
+    cdef const double[:, ::1] by_bucket  # the points in bucket order: read in sequence
 
     def __init__(self, points, double cell=0.25):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
@@ -48,6 +49,7 @@ cdef class PointIndex:
         counts = np.bincount(bucket, minlength=self.nx * self.ny)
         self.start = np.concatenate(([0], np.cumsum(counts))).astype(np.intp)
         self.order = np.argsort(bucket, kind="stable").astype(np.intp)
+        self.by_bucket = np.ascontiguousarray(self.points[self.order])
 
     cdef inline Py_ssize_t _bucket(self, double x, double y) noexcept nogil:
         cdef Py_ssize_t ix = <Py_ssize_t>floor((x - self.x0) / self.cell)
@@ -80,12 +82,13 @@ cdef class PointIndex:
                         continue
                     b = iy * self.nx + ix
                     for q in range(self.start[b], self.start[b + 1]):
-                        j = self.order[q]
-                        dx = self.pts[j, 0] - x
-                        dy = self.pts[j, 1] - y
+                        dx = self.by_bucket[q, 0] - x
+                        dy = self.by_bucket[q, 1] - y
                         d2 = dx * dx + dy * dy
-                        if d2 >= bound2 or (found == k and (d2 > d2s[k - 1] or (
-                                d2 == d2s[k - 1] and j > idx[k - 1]))):
+                        if d2 >= bound2 or (found == k and d2 > d2s[k - 1]):
+                            continue
+                        j = self.order[q]
+                        if found == k and d2 == d2s[k - 1] and j > idx[k - 1]:
                             continue
                         m = found if found < k else k - 1  # insert, dropping the k-th
                         while m > 0 and (d2s[m - 1] > d2
