@@ -56,12 +56,19 @@ def motion_jacobians(pose: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.nd
     return f_x, f_u
 
 
-def motion_noise(u: np.ndarray, noise: NoiseModel) -> np.ndarray:
-    """Covariance of the increment u (robot frame), growing with distance and turn."""
-    dist, turn = math.hypot(u[0], u[1]), abs(u[2])
+def motion_std(dx: float, dy: float, dtheta: float, noise: NoiseModel) -> tuple[float, float]:
+    """Standard deviations (translation per axis, rotation) of an increment (robot frame),
+    growing with distance and turn."""
+    dist = math.hypot(dx, dy)
     st = noise.trans_per_m * dist + noise.trans_floor_m
-    sr = (noise.rot_per_rad * turn + math.radians(noise.rot_per_m_deg) * dist
+    sr = (noise.rot_per_rad * abs(dtheta) + math.radians(noise.rot_per_m_deg) * dist
           + math.radians(noise.rot_floor_deg))
+    return st, sr
+
+
+def motion_noise(u: np.ndarray, noise: NoiseModel) -> np.ndarray:
+    """Covariance of the increment u (robot frame): :func:`motion_std` squared."""
+    st, sr = motion_std(u[0], u[1], u[2], noise)
     return np.diag([st * st, st * st, sr * sr])
 
 

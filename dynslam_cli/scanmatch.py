@@ -13,12 +13,13 @@ Points are in the robot frame; a new key scan is taken after ``key_distance_m`` 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from dynslam_cli import kernels
-from dynslam_cli.ekf import NoiseModel, motion_noise
+from dynslam_cli.ekf import NoiseModel, motion_std
 from dynslam_cli.geometry import compose, relative
 from dynslam_cli.kernels import PointIndex
 from dynslam_cli.types import Pose2D, Scan
@@ -26,7 +27,7 @@ from dynslam_cli.types import Pose2D, Scan
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
 # Motion prior for logs without odometry: stationary, with this standard deviation per scan
 # (x m, y m, θ rad): a still or slowly moving sensor is matched freely within it.
-NO_ODOMETRY_SIGMA = np.array([0.3, 0.3, math.radians(15.0)])
+NO_ODOMETRY_SIGMA = (0.3, 0.3, math.radians(15.0))
 # When the match from the odometry's guess fails, these turns of that guess are tried too.
 RECOVERY_TURNS_DEG = (-30.0, -20.0, -10.0, 10.0, 20.0, 30.0)
 
@@ -80,7 +81,8 @@ def _normals(pts: np.ndarray) -> np.ndarray:
 
 
 def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D,
-        cfg: MatchConfig, prior_sigma: np.ndarray | None = None) -> tuple[Pose2D, float, float]:
+        cfg: MatchConfig, prior_sigma: Sequence[float] | None = None
+        ) -> tuple[Pose2D, float, float]:
     """Point-to-line ICP: the pose of ``pts``' frame in the frame of the reference points
     (indexed by ``ref``, with their normals), starting at ``guess``; returns (pose, share of
     inliers, RMS of inlier residuals).
@@ -92,12 +94,14 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     the guess as a prior, so directions the scene does not constrain (along a corridor, in
     open space) stay at the odometry's value instead of sliding. Fewer than 10 pairs: the
     guess, share 0 and RMS ∞."""
-    prior = (np.zeros(3) if prior_sigma is None
-             else (RESIDUAL_SIGMA_M / np.maximum(prior_sigma, 1e-6)) ** 2)
+    prior = [0.0, 0.0, 0.0]
+    if prior_sigma is not None:  # information of the guess, in residual units
+        ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
+        prior = [r * r for r in ratios]
     x, y, th, share, rms, ok = kernels.icp(
         ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
-        cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m,
-        float(prior[0]), float(prior[1]), float(prior[2]), RESIDUAL_SIGMA_M)
+        cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
+        RESIDUAL_SIGMA_M)
     return (Pose2D(x, y, th), share, rms) if ok else (guess, 0.0, math.inf)
 
 
@@ -134,11 +138,9 @@ class ScanMatcher:
         ref, normals = self._key
         guess = compose(self._pose_in_key, wheel)
         if scan.has_odometry:
-            sigma = np.sqrt(np.diag(motion_noise(np.array([wheel.x, wheel.y, wheel.theta]),
-                                                 self.noise)))
-            sigma = np.maximum(sigma * cfg.prior_scale,
-                               [cfg.prior_floor_m, cfg.prior_floor_m,
-                                math.radians(cfg.prior_floor_deg)])
+            st, sr = motion_std(wheel.x, wheel.y, wheel.theta, self.noise)
+            st = max(st * cfg.prior_scale, cfg.prior_floor_m)
+            sigma = (st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg)))
         else:
             sigma = NO_ODOMETRY_SIGMA
         pose, share, rms = icp(ref, normals, pts, guess, cfg, sigma)
@@ -163,7 +165,7 @@ class ScanMatcher:
     def _good(self, share: float, rms: float, pts: np.ndarray) -> bool:
         return share >= self.cfg.min_inliers and rms <= self.cfg.max_rms_m and len(pts) >= 20
 
-    def _recover(self, pts: np.ndarray, guess: Pose2D, sigma: np.ndarray
+    def _recover(self, pts: np.ndarray, guess: Pose2D, sigma: Sequence[float]
                  ) -> tuple[Pose2D, float, float]:
         """Match again from the constant-velocity guess and from the odometry's guess turned
         by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best match
