@@ -24,7 +24,9 @@ def logit(p: float) -> float:
 
 def probability(logodds: np.ndarray) -> np.ndarray:
     """Probability from log-odds (elementwise)."""
-    return 1.0 / (1.0 + np.exp(-logodds.astype(np.float64)))
+    p = np.exp(-logodds.astype(np.float64))  # 1 / (1 + e^-l), in one buffer
+    p += 1.0
+    return np.reciprocal(p, out=p)
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +94,15 @@ class GridStack:
         seen[dr:dr + rows, dc:dc + cols] = self.seen
         self.seen = seen
         self.origin_row, self.origin_col = nr0, nc0
+
+    def reserve_like(self, other: GridStack) -> None:
+        """Size an empty stack to another's area at once (rather than growing, and copying,
+        scan by scan)."""
+        if self.shape[0] or not other.shape[0]:
+            return
+        self.origin_row, self.origin_col = other.origin_row, other.origin_col
+        self.layers = {n: np.zeros(other.shape, layer.dtype) for n, layer in self.layers.items()}
+        self.seen = np.zeros(other.shape, bool)
 
     def flat_index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Flat cell indices of world points (which must lie inside the grid)."""

@@ -285,6 +285,7 @@ class DynamicSlam:
         self._loops.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
         mapper = DynamicMapper(self.config)
+        mapper.grids.reserve_like(self.mapper.grids)
         for (_, x, y, th), scan in zip(trajectory, self._store.scans(), strict=True):
             mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)
         return self._result(mapper, trajectory)
