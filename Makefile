@@ -26,7 +26,7 @@ samples: install
 
 # Speed and memory of the real pipeline (not part of the tests): bench/results.json.
 bench: install
-	$(BIN)/python bench/run.py --runs 3
+	$(BIN)/python bench/run.py --runs 5
 
 # Accuracy of every built-in world, with and without the paper's components.
 accuracy: install
