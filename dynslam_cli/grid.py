@@ -104,11 +104,6 @@ class GridStack:
         self.layers = {n: np.zeros(other.shape, layer.dtype) for n, layer in self.layers.items()}
         self.seen = np.zeros(other.shape, bool)
 
-    def flat_index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat cell indices of world points (which must lie inside the grid)."""
-        row, col = self._row_col(x, y)
-        return row * self.shape[1] + col
-
     def flat_index_inside(self, x: np.ndarray, y: np.ndarray, margin_cells: int = 0
                           ) -> tuple[np.ndarray, np.ndarray]:
         """(flat indices of the points at least ``margin_cells`` inside the grid, mask of
@@ -137,7 +132,8 @@ class GridStack:
         angles = np.ascontiguousarray(angles, dtype=np.float64)
         beams = (sensor.x, sensor.y, sensor.theta, ranges, angles, min_range, max_range,
                  clear_cap)
-        x0, y0, x1, y1 = kernels.beam_extent(*beams)
+        extent = kernels.beam_extent(*beams)
+        x0, y0, x1, y1 = extent
         pad = self.pad
         self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
         # Free space stops one cell short of a hit: the cell a surface passes through is
@@ -145,7 +141,7 @@ class GridStack:
         # erode walls and flicker D.
         free, hit = kernels.trace_beams(
             self.seen.reshape(-1).view(np.uint8), self.shape[1],
-            self.resolution, self.origin_row, self.origin_col, *beams)
+            self.resolution, self.origin_row, self.origin_col, *extent, *beams)
         return Observation(free=free, hit=hit)
 
     def snapshot(self, name: str) -> OccupancyMap:

@@ -449,24 +449,28 @@ def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
 
 
 def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_ssize_t col0,
-                double sx, double sy, double sth, const double[::1] ranges,
-                const double[::1] angles, double min_range, double max_range, double cap):
+                double x0, double y0, double x1, double y1, double sx, double sy, double sth,
+                const double[::1] ranges, const double[::1] angles, double min_range,
+                double max_range, double cap):
     """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
     hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
     of a hit (to the cap for no return), less any cell hit; each cell listed once. Marks them
-    in ``seen``. The grid must hold every beam (see beam_extent)."""
-    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, u, v, bit
-    cdef Py_ssize_t umin, umax, vmin, vmax, w
+    in ``seen``. (x0, y0, x1, y1) is the beams' extent (beam_extent), which the grid holds."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0
     cdef double length, ca, sa, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
-    cdef bint hit_i, new
+    # which cells are listed: one bit per cell of the extent (+1 cell each side for rounding),
+    # small enough to stay in cache
+    cdef Py_ssize_t umin = <Py_ssize_t>floor(x0 / res) - col0 - 1
+    cdef Py_ssize_t vmin = <Py_ssize_t>floor(y0 / res) - row0 - 1
+    cdef Py_ssize_t w = <Py_ssize_t>floor(x1 / res) - col0 + 2 - umin
+    cdef Py_ssize_t h = <Py_ssize_t>floor(y1 / res) - row0 + 2 - vmin
+    cdef bint hit_i
     steps = np.zeros(n, dtype=np.intp)
     dirs = np.zeros((n, 2))
     cells = np.full(n, -1, dtype=np.intp)
     cdef Py_ssize_t[::1] cnt = steps
     cdef Py_ssize_t[::1] end = cells
     cdef double[:, ::1] dv = dirs
-    umin = umax = <Py_ssize_t>u0
-    vmin = vmax = <Py_ssize_t>v0
     for i in range(n):
         length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
         if length <= 0:
@@ -475,20 +479,12 @@ def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_s
         sa = sin(angles[i] + sth)
         dv[i, 0] = ca
         dv[i, 1] = sa
-        u = <Py_ssize_t>(u0 + length / res * ca)
-        v = <Py_ssize_t>(v0 + length / res * sa)
-        umin, umax, vmin, vmax = min(umin, u), max(umax, u), min(vmin, v), max(vmax, v)
         if hit_i:
             end[i] = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
             length = max(length - res, 0.0)
         cnt[i] = <Py_ssize_t>ceil(length / res)
         total += cnt[i]
-    # which cells are listed: one bit per cell of the scan's bounding box (+1 cell for
-    # rounding), small enough to stay in cache
-    umin -= 1
-    vmin -= 1
-    w = umax - umin + 2
-    bits = np.zeros(((vmax - vmin + 2) * w + 7) // 8, dtype=np.uint8)
+    bits = np.zeros((h * w + 7) // 8, dtype=np.uint8)
     cdef u8[::1] listed = bits
     hit = np.empty(n, dtype=np.intp)
     free = np.empty(total + 1, dtype=np.intp)

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynslam_cli import kernels
-from dynslam_cli.ekf import motion_noise
+from dynslam_cli.ekf import motion_std
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.kernels import PointIndex
 from dynslam_cli.localization import EkfConfig
@@ -118,7 +118,6 @@ class LikelihoodField:
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
-    points: np.ndarray
     normals: np.ndarray
     index: PointIndex
 
@@ -133,7 +132,7 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     kernels.splat_max(fine, rows, cols, FINE_KERNEL)
     kernels.splat_max(coarse, rows, cols, COARSE_KERNEL)
     index = PointIndex(points)
-    return LikelihoodField(fine, coarse, lo, points, index.normals(NORMAL_NEIGHBOURS), index)
+    return LikelihoodField(fine, coarse, lo, index.normals(NORMAL_NEIGHBOURS), index)
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
@@ -243,7 +242,6 @@ class LoopCloser:
         self.path: list[float] = []  # distance driven up to each node
         self.closures = 0
         self.attempts = 0
-        self._pending = False  # closures added but not yet optimized
         self._since_closure_m = 0.0
         self._last_attempt_m = -math.inf
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
@@ -267,8 +265,9 @@ class LoopCloser:
         z = relative(self.front[-1], front_pose)
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
-        cov = motion_noise(np.array([z.x, z.y, z.theta]), self.ekf.noise)
-        info = np.diag(1.0 / (np.diag(cov) * self.cfg.chain_noise_scale ** 2))  # cov is diagonal
+        st, sr = motion_std(z.x, z.y, z.theta, self.ekf.noise)
+        info = np.diag(1.0 / (np.array([st * st, st * st, sr * sr])
+                              * self.cfg.chain_noise_scale ** 2))
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
         step = math.hypot(z.x, z.y)
         self._append(front_pose, points, self.path[-1] + step)
@@ -328,8 +327,7 @@ class LoopCloser:
         self._since_closure_m = 0.0
         err, _, _ = edge_errors(self.graph.poses, np.array([i]), np.array([k]), z[None, :])
         if float(err[0] @ info @ err[0]) <= cfg.agree_chi2:
-            self._pending = True  # the graph already agrees: optimize later, not now
-            return False
+            return False  # the graph already agrees: optimize later (finish() always does)
         self.optimize()
         return True
 
@@ -337,7 +335,6 @@ class LoopCloser:
         """Gauss-Newton steps on the graph: a few while the log runs (the next closure goes
         on from there), to convergence at the end."""
         self.graph.optimize(iterations)
-        self._pending = False
         self._fields.clear()  # the submaps were drawn with the old poses
 
     def finish(self) -> None:

@@ -199,7 +199,7 @@ class DynamicSlam:
         self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
         self._store = ScanStore() if use_graph else None
         self._nodes = array("i")  # per scan: its graph node ...
-        self._offsets = array("d")  # ... and its pose in that node's EKF frame
+        self._node_offsets = array("d")  # ... and its pose in that node's EKF frame
         self._count = 0
 
     @property
@@ -255,7 +255,7 @@ class DynamicSlam:
         node = len(loops.front) - 1
         offset = relative(loops.front[node], local)
         self._nodes.append(node)
-        self._offsets.extend((offset.x, offset.y, offset.theta))
+        self._node_offsets.extend((offset.x, offset.y, offset.theta))
         return compose(loops.pose(node), offset)
 
     def to_map(self, points: np.ndarray) -> np.ndarray:
@@ -293,7 +293,7 @@ class DynamicSlam:
     def optimized_poses(self) -> np.ndarray:
         """Every scan's pose (N×3) from its node's optimized pose and its EKF offset."""
         node = np.asarray(self._nodes, dtype=np.int64)
-        off = np.asarray(self._offsets, dtype=np.float64).reshape(-1, 3)
+        off = np.asarray(self._node_offsets, dtype=np.float64).reshape(-1, 3)
         base = self._loops.graph.poses[node] if self._loops is not None else np.zeros((0, 3))
         c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
         return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
