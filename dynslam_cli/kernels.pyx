@@ -640,3 +640,155 @@ def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t st
             o[m, 1] = y + r * sin(angles[i] + theta)
             m += 1
     return out[:m].copy()
+
+
+# -- pose graph: the sparse normal equations ------------------------------------------------
+def reverse_cuthill_mckee(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1] ej):
+    """An ordering of the n nodes of the graph with edges (ei[k], ej[k]) that keeps the
+    neighbours of each node close to it in the order (reverse Cuthill-McKee: breadth first
+    from a node of least degree, neighbours by increasing degree, then reversed), so a
+    Cholesky factorization in that order fills in little. Ties go to the lower index."""
+    cdef Py_ssize_t m = ei.shape[0], k, a, b, head = 0, tail = 0, s, p, q, t, v
+    degree_arr = np.zeros(n, dtype=np.intp)
+    cdef Py_ssize_t[::1] degree = degree_arr
+    for k in range(m):
+        if ei[k] != ej[k]:
+            degree[ei[k]] += 1
+            degree[ej[k]] += 1
+    start_arr = np.zeros(n + 1, dtype=np.intp)
+    cdef Py_ssize_t[::1] start = start_arr
+    for a in range(n):
+        start[a + 1] = start[a] + degree[a]
+    fill_arr = start_arr[:n].copy()
+    adj_arr = np.empty(start[n], dtype=np.intp)
+    cdef Py_ssize_t[::1] fill = fill_arr, adj = adj_arr
+    for k in range(m):
+        a, b = ei[k], ej[k]
+        if a != b:
+            adj[fill[a]] = b
+            fill[a] += 1
+            adj[fill[b]] = a
+            fill[b] += 1
+    order_arr = np.empty(n, dtype=np.intp)
+    seen_arr = np.zeros(n, dtype=np.uint8)
+    cdef Py_ssize_t[::1] order = order_arr
+    cdef u8[::1] seen = seen_arr
+    while tail < n:  # one breadth-first pass per connected component
+        s = -1
+        for a in range(n):
+            if not seen[a] and (s < 0 or degree[a] < degree[s]):
+                s = a
+        seen[s] = 1
+        order[tail] = s
+        tail += 1
+        while head < tail:
+            v = order[head]
+            head += 1
+            q = tail
+            for p in range(start[v], start[v + 1]):
+                a = adj[p]
+                if not seen[a]:
+                    seen[a] = 1
+                    order[tail] = a
+                    tail += 1
+            for p in range(q + 1, tail):  # insertion sort: (degree, index)
+                t = order[p]
+                k = p - 1
+                while k >= q and (degree[order[k]] > degree[t]
+                                  or (degree[order[k]] == degree[t] and order[k] > t)):
+                    order[k + 1] = order[k]
+                    k -= 1
+                order[k + 1] = t
+    return order_arr[::-1].copy()
+
+
+def solve_spd(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indices,
+              const double[::1] data, const Py_ssize_t[::1] perm, const double[::1] rhs):
+    """x with A x = rhs, A symmetric positive definite, given in compressed columns (both
+    triangles; duplicate entries are summed), by the LDLᵀ factorization of A with rows and
+    columns in the order ``perm`` (Davis's up-looking algorithm, "Algorithm 849", 2005).
+    Raises ValueError if a pivot is not positive."""
+    cdef Py_ssize_t n = rhs.shape[0], k, kk, p, i, top, ln, p2
+    cdef double yi, l_ki
+    pinv_arr = np.empty(n, dtype=np.intp)
+    parent_arr = np.empty(n, dtype=np.intp)
+    flag_arr = np.empty(n, dtype=np.intp)
+    lnz_arr = np.zeros(n, dtype=np.intp)
+    lp_arr = np.zeros(n + 1, dtype=np.intp)
+    cdef Py_ssize_t[::1] pinv = pinv_arr, parent = parent_arr, flag = flag_arr
+    cdef Py_ssize_t[::1] lnz = lnz_arr, lp = lp_arr
+    for k in range(n):
+        pinv[perm[k]] = k
+    for k in range(n):  # symbolic: the elimination tree and each column's count
+        parent[k] = -1
+        flag[k] = k
+        kk = perm[k]
+        for p in range(indptr[kk], indptr[kk + 1]):
+            i = pinv[indices[p]]
+            while i < k and flag[i] != k:
+                if parent[i] == -1:
+                    parent[i] = k
+                lnz[i] += 1
+                flag[i] = k
+                i = parent[i]
+    for k in range(n):
+        lp[k + 1] = lp[k] + lnz[k]
+    li_arr = np.empty(lp[n], dtype=np.intp)
+    lx_arr = np.empty(lp[n], dtype=np.float64)
+    d_arr = np.empty(n, dtype=np.float64)
+    y_arr = np.zeros(n, dtype=np.float64)
+    pattern_arr = np.empty(n, dtype=np.intp)
+    cdef Py_ssize_t[::1] li = li_arr, pattern = pattern_arr
+    cdef double[::1] lx = lx_arr, d = d_arr, y = y_arr
+    for k in range(n):  # numeric: row k of L from the rows above it
+        top = n
+        flag[k] = k
+        lnz[k] = 0
+        kk = perm[k]
+        for p in range(indptr[kk], indptr[kk + 1]):
+            i = pinv[indices[p]]
+            if i > k:
+                continue
+            y[i] += data[p]
+            ln = 0
+            while flag[i] != k:
+                pattern[ln] = i
+                ln += 1
+                flag[i] = k
+                i = parent[i]
+            while ln > 0:
+                top -= 1
+                ln -= 1
+                pattern[top] = pattern[ln]
+        d[k] = y[k]
+        y[k] = 0.0
+        while top < n:
+            i = pattern[top]
+            top += 1
+            yi = y[i]
+            y[i] = 0.0
+            p2 = lp[i] + lnz[i]
+            for p in range(lp[i], p2):
+                y[li[p]] -= lx[p] * yi
+            l_ki = yi / d[i]
+            d[k] -= l_ki * yi
+            li[p2] = k
+            lx[p2] = l_ki
+            lnz[i] += 1
+        if not d[k] > 0.0:
+            raise ValueError("the matrix is not positive definite")
+    x_arr = np.empty(n, dtype=np.float64)
+    cdef double[::1] x = x_arr
+    for k in range(n):
+        y[k] = rhs[perm[k]]
+    for k in range(n):  # L z = P b
+        for p in range(lp[k], lp[k + 1]):
+            y[li[p]] -= lx[p] * y[k]
+    for k in range(n):
+        y[k] /= d[k]
+    for k in range(n - 1, -1, -1):  # Lᵀ w = D⁻¹ z
+        for p in range(lp[k], lp[k + 1]):
+            y[k] -= lx[p] * y[li[p]]
+    for k in range(n):
+        x[perm[k]] = y[k]
+    return x_arr

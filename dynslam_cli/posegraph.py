@@ -3,8 +3,9 @@
 Nodes are robot poses (x, y, θ) at key scans; an edge says "node j seen from node i is at
 z, with information Ω" (3×3). The error of an edge is the pose of j relative to i, seen from
 z: ``e = t2v(Z⁻¹ (Xᵢ⁻¹ Xⱼ))``. Gauss-Newton solves the sparse normal equations (the first
-node is held fixed) until the step is tiny. Loop-closure edges carry a Cauchy kernel, so a
-wrong one pulls only softly.
+node is held fixed) until the step is tiny, by an LDLᵀ factorization with the nodes in
+reverse Cuthill-McKee order (a chain with loops then fills in little). Loop-closure edges
+carry a Cauchy kernel, so a wrong one pulls only softly.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynslam_cli import kernels
 from dynslam_cli.geometry import wrap_angles
 
 CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
@@ -60,9 +62,6 @@ class PoseGraph:
         """Gauss-Newton over all nodes but the first (held where it is)."""
         if not self.edges.i:
             return
-        from scipy.sparse import coo_matrix  # imported here: 0.13 s, and only loops need it
-        from scipy.sparse.linalg import spsolve
-
         i = np.asarray(self.edges.i)
         j = np.asarray(self.edges.j)
         z = np.asarray(self.edges.z)
@@ -70,6 +69,11 @@ class PoseGraph:
         robust = np.asarray(self.edges.robust)
         n = len(self.poses)
         rows, cols = _hessian_pattern(i, j)
+        by_column = np.argsort(cols, kind="stable")  # compressed columns; duplicates summed
+        indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=3 * n))))
+        indices = rows[by_column]
+        node_order = kernels.reverse_cuthill_mckee(n, i, j)
+        order = (3 * node_order[:, None] + np.arange(3)).ravel()
         g_index = np.concatenate([(3 * i[:, None] + np.arange(3)).ravel(),
                                   (3 * j[:, None] + np.arange(3)).ravel()])
         for _ in range(iterations):
@@ -83,11 +87,14 @@ class PoseGraph:
             vals = np.concatenate([(at_w @ a).ravel(), h_ij.ravel(),
                                    h_ij.transpose(0, 2, 1).ravel(), (bt_w @ b).ravel(),
                                    np.full(3, 1e12)])  # the first node's anchor
-            h = coo_matrix((vals, (rows, cols)), shape=(3 * n, 3 * n)).tocsc()
             g = np.bincount(g_index, np.concatenate([(at_w @ err[:, :, None]).ravel(),
                                                      (bt_w @ err[:, :, None]).ravel()]),
                             minlength=3 * n)
-            step = -spsolve(h, g).reshape(-1, 3)
+            try:
+                step = -kernels.solve_spd(indptr, indices, vals[by_column], order,
+                                          g).reshape(-1, 3)
+            except ValueError:  # not positive definite (degenerate edges): keep the poses
+                break
             self.poses += step
             self.poses[:, 2] = wrap_angles(self.poses[:, 2])
             if np.abs(step[:, :2]).max() < 1e-4 and np.abs(step[:, 2]).max() < 1e-5:

@@ -95,3 +95,40 @@ def test_mean_scores_match_numpy():
             ok = (r >= 0) & (r < 60) & (cc >= 0) & (cc < 80)
             want[a, b] = grid[r[ok], cc[ok]].sum() / len(pts)
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_sparse_solve_matches_dense_in_any_order():
+    n = 60
+    a = np.zeros((n, n))
+    for i in range(n - 1):  # a chain with a few long links, like a pose graph's Hessian
+        a[i, i + 1] = a[i + 1, i] = -1.0
+    for i, j in ((0, 40), (5, 59), (17, 33)):
+        a[i, j] = a[j, i] = -0.5
+    a += np.diag(np.abs(a).sum(axis=1) + 0.1)
+    rows, cols = np.nonzero(a)
+    # compressed columns with every entry split in two duplicates (they must be summed)
+    rows, cols = np.repeat(rows, 2), np.repeat(cols, 2)
+    by_col = np.argsort(cols, kind="stable")
+    indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=n))))
+    data = 0.5 * a[rows, cols][by_col]
+    b = RNG.standard_normal(n)
+    for order in (np.arange(n), RNG.permutation(n)):
+        x = kernels.solve_spd(indptr, rows[by_col].copy(), data, order.astype(np.intp), b)
+        np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
+    a[3, 3] = -1.0  # indefinite
+    with pytest.raises(ValueError, match="positive definite"):
+        kernels.solve_spd(indptr, rows[by_col].copy(), 0.5 * a[rows, cols][by_col],
+                          np.arange(n, dtype=np.intp), b)
+
+
+def test_reverse_cuthill_mckee_orders_a_chain_end_to_end_and_covers_every_node():
+    n = 50
+    i = np.arange(n - 1, dtype=np.intp)
+    order = kernels.reverse_cuthill_mckee(n, i, i + 1)
+    assert list(order) == list(range(n - 1, -1, -1))  # from the end of lowest index
+    # a ring 0-1-2-3, a chain 5-6-7, lone nodes 4 and 8: each component breadth first from
+    # its node of least degree (neighbours by degree, then index), lone ones first; reversed
+    ei = np.array([0, 1, 2, 0, 5, 6], dtype=np.intp)
+    ej = np.array([1, 2, 3, 3, 6, 7], dtype=np.intp)
+    order = kernels.reverse_cuthill_mckee(9, ei, ej)
+    assert list(order) == [2, 3, 1, 0, 7, 6, 5, 8, 4]
