@@ -2,8 +2,9 @@
 
 For each log: several runs of ``dynslam process`` as a user runs it (a fresh process, so
 start-up counts); reports the median wall time, data duration ÷ wall time (× real time), the
-median peak RSS, and the median per-scan time of the first vs the last 10% of scans (from
-summary.json). Also ``dynslam --help`` start-up. Writes bench/results.json and prints a table.
+median peak RSS (of the main process, and of the read-ahead process beside it), and the
+median per-scan time of the first vs the last 10% of scans (from summary.json). Also
+``dynslam --help`` start-up. Writes bench/results.json and prints a table.
 
     python bench/run.py [--runs 3] [--quick]
 """
@@ -46,7 +47,9 @@ def one_run(log: Path, out: Path) -> dict:
     wall = time.perf_counter() - start
     summary = json.loads((out / "summary.json").read_text())
     return {"wall_s": wall, "data_s": summary["data_duration_s"],
-            "rss_mb": summary["peak_rss_mb"], **summary["scan_time_ms"]}
+            "rss_mb": summary["peak_rss_mb"],
+            "read_ahead_rss_mb": summary.get("peak_rss_mb_read_ahead") or 0.0,
+            **summary["scan_time_ms"]}
 
 
 def main() -> None:
@@ -60,11 +63,13 @@ def main() -> None:
         for name, log in logs(args.quick).items():
             runs = [one_run(log, Path(tmp) / "out") for _ in range(args.runs)]
             med = {k: statistics.median(r[k] for r in runs if r[k] is not None)
-                   for k in ("wall_s", "rss_mb", "first_10pct_median", "last_10pct_median")}
+                   for k in ("wall_s", "rss_mb", "read_ahead_rss_mb", "first_10pct_median",
+                             "last_10pct_median")}
             data = runs[0]["data_s"]
             results[name] = {"runs": runs, "median_wall_s": round(med["wall_s"], 3),
                              "x_real_time": round(data / med["wall_s"], 1),
                              "median_peak_rss_mb": med["rss_mb"],
+                             "median_peak_rss_mb_read_ahead": med["read_ahead_rss_mb"],
                              "scan_ms_first_10pct": med["first_10pct_median"],
                              "scan_ms_last_10pct": med["last_10pct_median"],
                              "last_over_first": round(med["last_10pct_median"]
@@ -76,13 +81,14 @@ def main() -> None:
         helps.append(time.perf_counter() - start)
     results["dynslam --help"] = {"median_wall_s": round(statistics.median(helps), 3)}
     (ROOT / "bench" / "results.json").write_text(json.dumps(results, indent=2) + "\n")
-    print(f"{'log':<34} {'wall s':>8} {'× real':>8} {'RSS MB':>8} {'first ms':>9} "
-          f"{'last ms':>8} {'last/first':>10}")
+    print(f"{'log':<34} {'wall s':>8} {'× real':>8} {'RSS MB':>8} {'+ahead':>7} "
+          f"{'first ms':>9} {'last ms':>8} {'last/first':>10}")
     for name, r in results.items():
         if "x_real_time" in r:
             print(f"{name:<34} {r['median_wall_s']:>8} {r['x_real_time']:>8} "
-                  f"{r['median_peak_rss_mb']:>8} {r['scan_ms_first_10pct']:>9} "
-                  f"{r['scan_ms_last_10pct']:>8} {r['last_over_first']:>10}")
+                  f"{r['median_peak_rss_mb']:>8} {r['median_peak_rss_mb_read_ahead']:>7} "
+                  f"{r['scan_ms_first_10pct']:>9} {r['scan_ms_last_10pct']:>8} "
+                  f"{r['last_over_first']:>10}")
     print(f"{'dynslam --help':<34} {results['dynslam --help']['median_wall_s']:>8}")
 
 

@@ -19,7 +19,7 @@ import tempfile
 import time
 import tomllib
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +43,9 @@ class Job:
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
     force: bool = False
     reader: dict[str, Any] = field(default_factory=dict)
+    read_ahead: bool = True
+    """Read and scan-match in a second process (see dynslam_cli.frontend); off when the
+    batch already runs one worker per core."""
 
 
 def expand_logs(items: Iterable[str]) -> list[str]:
@@ -137,7 +140,8 @@ def run_job(job: Job) -> dict[str, Any]:
 
         config = load_config(Path(job.config) if job.config else None, job.overrides)
         summary, _ = process_log(job.log, Path(job.output), job.force,
-                                 ReaderOptions(**job.reader), config)
+                                 ReaderOptions(**job.reader), config,
+                                 read_ahead=job.read_ahead)
         dur, wall = summary["data_duration_s"], summary["wall_time_s"]
         row.update(format=summary["input"]["format"], scans=summary["scans_processed"],
                    data_duration_s=round(dur, 3), wall_time_s=wall,
@@ -208,7 +212,7 @@ def run_local(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_job, job) for job in jobs]
+        futures = [pool.submit(run_job, replace(job, read_ahead=False)) for job in jobs]
         for f in as_completed(futures):
             yield f.result()
 

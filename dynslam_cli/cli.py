@@ -79,12 +79,16 @@ def main() -> None:
 @click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
               help="Also write the S ∪ D picture every SECONDS of log time into snapshots/ "
                    "and snapshots/evolution.gif.")
+@click.option("--no-read-ahead", is_flag=True,
+              help="Read the log and match scans in this process too (by default a second "
+                   "process does that ahead of the filter, on another core; the results are "
+                   "the same).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
             topic: str | None, odom_topic: str | None, flaser_fov: float | None,
             resolution: float | None, config_file: Path | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
-            quiet: bool) -> None:
+            no_read_ahead: bool, quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
     LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped), a Player writelog, a
@@ -129,7 +133,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         options = ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
                                 fov_deg=config.laser.fov_deg)
         summary = _process(log, target, force, format_name, options, config, quiet,
-                           snapshots)
+                           snapshots, not no_read_ahead)
         if not quiet:
             s = summary
             click.echo(f"dynslam: {s['scans_processed']} scans, {s['data_duration_s']:.1f} s of "
@@ -140,12 +144,13 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
 
 def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
-             config: Any, quiet: bool, snapshot_every: float | None) -> dict[str, Any]:
+             config: Any, quiet: bool, snapshot_every: float | None,
+             read_ahead: bool) -> dict[str, Any]:
     from dynslam_cli.job import process_log
 
     if quiet or not sys.stderr.isatty():  # no progress bar (and no tqdm import)
         summary, stats = process_log(log, target, force, options, config, format_name,
-                                     snapshot_every)
+                                     snapshot_every, read_ahead=read_ahead)
     else:
         from tqdm import tqdm
 
@@ -158,7 +163,7 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
                 bar.update(done - bar.n)
 
             summary, stats = process_log(log, target, force, options, config, format_name,
-                                         snapshot_every, on_progress)
+                                         snapshot_every, on_progress, read_ahead)
     _report_warnings(summary["input"]["path"], stats)
     return summary
 

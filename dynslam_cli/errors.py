@@ -17,6 +17,9 @@ class InputError(DynslamError):
         where = f"{source}:{line}" if line is not None else source
         super().__init__(f"{where}: {message}")
 
+    def __reduce__(self) -> tuple[type, tuple[str, str, int | None]]:
+        return InputError, (self.source, self.message, self.line)  # pickles (read-ahead)
+
 
 class ConfigError(DynslamError):
     """A configuration file or option that cannot be used."""

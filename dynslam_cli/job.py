@@ -13,6 +13,7 @@ from typing import Any
 
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
+from dynslam_cli.frontend import ForkedFrontEnd, open_front_end
 from dynslam_cli.pipeline import run
 
 LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
@@ -34,10 +35,12 @@ def default_output(log: str) -> Path:
 
 def process_log(log: str, target: Path, force: bool, options: Any, config: Config,
                 format_name: str | None = None, snapshot_every: float | None = None,
-                on_progress: Callable[[int, int], None] | None = None
-                ) -> tuple[dict[str, Any], Any]:
+                on_progress: Callable[[int, int], None] | None = None,
+                read_ahead: bool = True) -> tuple[dict[str, Any], Any]:
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
-    ``on_progress(bytes_done, bytes_total)`` is called every few scans."""
+    ``on_progress(bytes_done, bytes_total)`` is called every few scans. ``read_ahead``: read
+    and scan-match in a second process (where the system can fork; see
+    dynslam_cli.frontend)."""
     from formats import open_log
     from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from formats.picture import SnapshotWriter
@@ -48,16 +51,18 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
                      if snapshot_every else None)
         ticks = array("d")
+        front = open_front_end(reader, source, config, read_ahead)
         try:
             def on_scan(i: int, scan: Any, slam: Any) -> None:
                 ticks.append(time.perf_counter())
                 if on_progress is not None and i % 20 == 0:
-                    on_progress(*source.progress())
+                    on_progress(*front.progress())
                 if snapshots is not None:
                     snapshots.maybe_take(scan.stamp, slam)
 
-            result = run(reader.scans(), config, on_scan)
+            result = run(front.scans(), config, on_scan, front)
         finally:
+            front.close()
             source.close()
         if snapshots is not None:
             snapshots.finish(result)
@@ -67,7 +72,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "input": {"path": source.name, "format": entry.name,
                       "options": {"laser": options.laser, "topic": options.topic,
                                   "odom_topic": options.odom_topic, "format": format_name}},
-            "reader": reader.stats.to_dict(),
+            "reader": front.stats.to_dict(),
             "scans_processed": len(stamps),
             "first_stamp": float(stamps[0]) if len(stamps) else None,
             "data_duration_s": float(stamps.max() - stamps.min()) if len(stamps) else 0.0,
@@ -80,10 +85,17 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
             "wall_time_s": round(time.perf_counter() - start, 3),
             "scan_time_ms": _scan_times(ticks),
-            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            "peak_rss_mb": _peak_rss_mb(resource.RUSAGE_SELF),
+            "peak_rss_mb_read_ahead": (_peak_rss_mb(resource.RUSAGE_CHILDREN)
+                                       if isinstance(front, ForkedFrontEnd) else None),
         }
         write_results(tmp, result, config, summary)
-    return summary, reader.stats
+    return summary, front.stats
+
+
+def _peak_rss_mb(who: int) -> float:
+    """Peak resident memory of this process, or of its largest finished child."""
+    return round(resource.getrusage(who).ru_maxrss / 1024, 1)
 
 
 def _scan_times(ticks: array) -> dict[str, float | None]:

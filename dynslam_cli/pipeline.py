@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import math
 from array import array
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -34,11 +36,12 @@ from dynslam_cli.dynamic import (
     neighbourhood_offsets,
     radius_cells,
 )
+from dynslam_cli.frontend import Motion, Odometry
 from dynslam_cli.geometry import compose, relative, transform_points, wrap_angles
 from dynslam_cli.grid import GridStack, Observation, OccupancyMap
 from dynslam_cli.localization import CornerSlam
 from dynslam_cli.loopclosure import LoopCloser
-from dynslam_cli.scanmatch import ScanMatcher, scan_points
+from dynslam_cli.scanmatch import scan_points
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -184,17 +187,22 @@ class ScanStore:
             yield Scan(stamp, ranges.astype(np.float64), angles, max_range, Pose2D(), laser)
 
 
-class DynamicSlam:
-    """One run of the algorithm; feed it scans in log order with :meth:`step`."""
+class Motions(Protocol):
+    def motion(self, scan: Scan) -> Motion: ...
 
-    def __init__(self, config: Config) -> None:
+
+class DynamicSlam:
+    """One run of the algorithm; feed it scans in log order with :meth:`step`. Each scan's
+    motion comes from ``motions`` (a front end that has computed it already) or, by default,
+    is computed here (:class:`dynslam_cli.frontend.Odometry`)."""
+
+    def __init__(self, config: Config, motions: Motions | None = None) -> None:
         self.config = config
         self.mapper = DynamicMapper(config)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
-        self._last_odom: Pose2D | None = None
-        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
-                         else None)
+        self._motions = motions if motions is not None else Odometry(config)
+        self._motion_sources: Counter[str] = Counter()
         use_graph = config.loop.enabled and config.ekf.localization == "ekf"
         self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
         self._store = ScanStore() if use_graph else None
@@ -266,10 +274,9 @@ class DynamicSlam:
 
     def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
         """The control input: scan-matched motion where the match is good, else odometry."""
-        if self._matcher is not None:
-            return self._matcher.increment(scan)
-        last, self._last_odom = self._last_odom, scan.odom
-        return (relative(last, scan.odom) if last is not None else Pose2D()), False
+        motion = self._motions.motion(scan)
+        self._motion_sources[motion.source] += 1
+        return motion.increment, motion.matched
 
     def current(self) -> SlamResult:
         """The state so far, as mapped online (for snapshots)."""
@@ -312,10 +319,10 @@ class DynamicSlam:
     def counts(self) -> dict[str, int]:
         """How localization went, for ``summary.json``."""
         out: dict[str, int] = {}
-        if self._matcher is not None:
-            m = self._matcher
-            out.update(scan_matches=m.matched, scan_match_recoveries=m.recovered,
-                       odometry_fallbacks=m.fallbacks)
+        if self.config.match.enabled:
+            m = self._motion_sources
+            out.update(scan_matches=m["matched"] + m["recovered"],
+                       scan_match_recoveries=m["recovered"], odometry_fallbacks=m["fallback"])
         if self._loops is not None:
             out.update(graph_nodes=len(self._loops.front),
                        loop_closure_attempts=self._loops.attempts,
@@ -365,10 +372,11 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
 
 
 def run(scans: Iterable[Scan], config: Config,
-        on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None) -> SlamResult:
+        on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None,
+        motions: Motions | None = None) -> SlamResult:
     """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
     after each scan (progress, snapshots)."""
-    slam = DynamicSlam(config)
+    slam = DynamicSlam(config, motions)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:

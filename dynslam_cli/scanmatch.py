@@ -121,20 +121,18 @@ class ScanMatcher:
         self._pose_in_key = Pose2D()  # matched pose of the last scan in the key frame
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
-        self.matched = 0
-        self.fallbacks = 0
-        self.recovered = 0
 
-    def increment(self, scan: Scan) -> tuple[Pose2D, bool]:
-        """Motion since the previous scan, in the previous robot frame, and whether it
-        came from a good match (else it is the wheel odometry's)."""
+    def increment(self, scan: Scan) -> tuple[Pose2D, str]:
+        """Motion since the previous scan, in the previous robot frame, and where it came
+        from: "matched", "recovered" (matched after retrying other guesses), "fallback" (no
+        good match: the wheel odometry's) or "odometry" (no key scan to match against)."""
         cfg = self.cfg
         wheel = relative(self._last_odom, scan.odom)
         self._last_odom = scan.odom
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         if self._key is None:
             self._set_key(scan, Pose2D())
-            return wheel, False
+            return wheel, "odometry"
         ref, normals = self._key
         guess = compose(self._pose_in_key, wheel)
         if scan.has_odometry:
@@ -144,15 +142,11 @@ class ScanMatcher:
         else:
             sigma = NO_ODOMETRY_SIGMA
         pose, share, rms = icp(ref, normals, pts, guess, cfg, sigma)
-        good = self._good(share, rms, pts)
-        if not good and scan.has_odometry:  # odometry glitches (a doubled turn, a stall)
+        source = "matched" if self._good(share, rms, pts) else "fallback"
+        if source == "fallback" and scan.has_odometry:  # odometry glitches (a doubled turn)
             pose, share, rms = self._recover(pts, guess, sigma)
-            good = self._good(share, rms, pts)
-            self.recovered += good
-        if good:
-            self.matched += 1
-        else:
-            self.fallbacks += 1
+            source = "recovered" if self._good(share, rms, pts) else "fallback"
+        if source == "fallback":
             pose = guess
         inc = relative(self._pose_in_key, pose)
         self._pose_in_key = pose
@@ -160,7 +154,7 @@ class ScanMatcher:
         if (math.hypot(pose.x, pose.y) > cfg.key_distance_m
                 or abs(pose.theta) > math.radians(cfg.key_angle_deg)):
             self._set_key(scan, Pose2D())
-        return inc, good
+        return inc, source
 
     def _good(self, share: float, rms: float, pts: np.ndarray) -> bool:
         return share >= self.cfg.min_inliers and rms <= self.cfg.max_rms_m and len(pts) >= 20

@@ -1,0 +1,233 @@
+"""The front end: the log's scans, each with the motion since the previous scan (the EKF's
+control input), read and matched ahead of the filter in a second process.
+
+The motion of a scan is the wheel odometry's, or, where the scan matches the key scan well,
+the scan-matched one (:class:`dynslam_cli.scanmatch.ScanMatcher`). Reading the log and matching
+depend on nothing the filter, the pose graph or the maps compute, so where the operating
+system can fork, :class:`ForkedFrontEnd` does both in a child process on another core and
+sends the scans with their motions through a pipe, in log order, a batch at a time; this
+process runs the rest. The results are those of one process, byte for byte. An error in the
+child (a malformed line, say) is raised here once the scans before it have been processed,
+as it would be without the child. :class:`FrontEnd` does the same work in this process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import signal
+import sys
+import traceback
+from collections.abc import Iterator
+from typing import Any, BinaryIO, NamedTuple, Protocol
+
+from dynslam_cli.config import Config
+from dynslam_cli.errors import DynslamError
+from dynslam_cli.geometry import relative
+from dynslam_cli.scanmatch import ScanMatcher
+from dynslam_cli.types import Pose2D, Scan
+
+BATCH = 16  # scans per message from the child
+
+
+class Motion(NamedTuple):
+    """Motion since the previous scan, in the previous robot frame, and where it came from:
+    ``matched`` (a good scan match), ``recovered`` (a good match after retrying other
+    guesses), ``fallback`` (no good match: wheel odometry), or ``odometry`` (no match tried:
+    the first scan, a sparse key scan, or scan matching switched off)."""
+
+    increment: Pose2D
+    source: str
+
+    @property
+    def matched(self) -> bool:
+        return self.source in ("matched", "recovered")
+
+
+class Odometry:
+    """Each scan's :class:`Motion`, from the scans in log order."""
+
+    def __init__(self, config: Config) -> None:
+        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
+                         else None)
+        self._last_odom: Pose2D | None = None
+
+    def motion(self, scan: Scan) -> Motion:
+        if self._matcher is not None:
+            increment, source = self._matcher.increment(scan)
+            return Motion(increment, source)
+        last, self._last_odom = self._last_odom, scan.odom
+        return Motion(relative(last, scan.odom) if last is not None else Pose2D(), "odometry")
+
+
+class Reader(Protocol):
+    stats: Any
+
+    def scans(self) -> Iterator[Scan]: ...
+
+
+class Source(Protocol):
+    def progress(self) -> tuple[int, int]: ...
+
+
+class FrontEnd:
+    """The scans of ``reader`` with their motions, in this process. Iterate :meth:`scans`;
+    :meth:`motion` gives the motion of the scan last yielded, :meth:`progress` the bytes read
+    so far and ``stats`` the reader's counts."""
+
+    def __init__(self, reader: Reader, source: Source, config: Config) -> None:
+        self._reader = reader
+        self._source = source
+        self._odometry = Odometry(config)
+        self._motion: Motion | None = None
+
+    @property
+    def stats(self) -> Any:
+        return self._reader.stats
+
+    def scans(self) -> Iterator[Scan]:
+        for scan in self._reader.scans():
+            self._motion = self._odometry.motion(scan)
+            yield scan
+
+    def motion(self, scan: Scan) -> Motion:
+        assert self._motion is not None
+        return self._motion
+
+    def progress(self) -> tuple[int, int]:
+        return self._source.progress()
+
+    def close(self) -> None:
+        pass
+
+
+class ForkedFrontEnd:
+    """:class:`FrontEnd` in a forked child process, running ahead (same interface). Call
+    :meth:`close` when done: it stops the child if it is still running."""
+
+    def __init__(self, reader: Reader, source: Source, config: Config) -> None:
+        self.stats = reader.stats
+        self._progress = (0, 0)
+        self._motions: list[Motion] = []
+        self._next = 0
+        read_end, write_end = os.pipe()
+        try:
+            self._pid = os.fork()
+        except OSError:
+            os.close(read_end)
+            os.close(write_end)
+            raise
+        self._running = True
+        if self._pid == 0:  # the child: never returns
+            os.close(read_end)
+            _child(FrontEnd(reader, source, config), write_end)
+        os.close(write_end)
+        self._pipe: BinaryIO | None = os.fdopen(read_end, "rb")
+
+    def scans(self) -> Iterator[Scan]:
+        assert self._pipe is not None
+        while True:
+            try:
+                kind, payload = pickle.load(self._pipe)
+            except EOFError:
+                raise RuntimeError(f"the front-end process ended unexpectedly "
+                                   f"({self._reap()})") from None
+            if kind == "scans":
+                scans, self._motions, self._progress = payload
+                for self._next, scan in enumerate(scans):
+                    yield scan
+            elif kind == "end":
+                self.stats = payload
+                return
+            else:
+                raise payload
+
+    def motion(self, scan: Scan) -> Motion:
+        return self._motions[self._next]
+
+    def progress(self) -> tuple[int, int]:
+        return self._progress
+
+    def close(self) -> None:
+        if self._pipe is not None:
+            self._pipe.close()
+            self._pipe = None
+        if self._running:
+            with contextlib.suppress(ProcessLookupError):  # stopped, if it still runs
+                os.kill(self._pid, signal.SIGKILL)
+            self._reap()
+
+    def _reap(self) -> str:
+        """Wait for the child to end (once: its process id may be reused after)."""
+        self._running = False
+        _, status = os.waitpid(self._pid, 0)
+        return f"wait status {status}"
+
+
+def _child(front: FrontEnd, fd: int) -> None:
+    """Run the front end, sending batches of (scans, motions, progress), then ("end",
+    stats) or ("error", exception); exit without running the parent's clean-up."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    code = 0
+    scans: list[Scan] = []
+    motions: list[Motion] = []
+    try:
+        with os.fdopen(fd, "wb") as pipe:
+            try:
+                for scan in front.scans():
+                    scans.append(scan)
+                    motions.append(front.motion(scan))
+                    if len(scans) == BATCH:
+                        _send(pipe, "scans", (scans, motions, front.progress()))
+                        scans, motions = [], []
+                end: tuple[str, object] = ("end", front.stats)
+            except Exception as e:
+                end = ("error", _picklable(e))
+            if scans:  # the scans before the end (or the error)
+                _send(pipe, "scans", (scans, motions, front.progress()))
+            _send(pipe, *end)
+    except BaseException:  # the parent has gone (broken pipe) or the child was stopped
+        code = 1
+    finally:
+        os._exit(code)
+
+
+def _send(pipe: BinaryIO, kind: str, payload: object) -> None:
+    pickle.dump((kind, payload), pipe, protocol=pickle.HIGHEST_PROTOCOL)
+    pipe.flush()
+
+
+def _picklable(e: Exception) -> Exception:
+    """The exception, cut from its chain (the cause, a library's own exception, may not
+    pickle); a RuntimeError with its text if it still does not pickle. An unexpected error
+    (not the user's input: see dynslam_cli.errors) gets the child's traceback as a note."""
+    where = "".join(traceback.format_exception(e))
+    e.__cause__ = e.__context__ = e.__traceback__ = None
+    try:
+        pickle.loads(pickle.dumps(e))
+    except Exception:
+        e = RuntimeError(f"{type(e).__name__}: {e}")
+    if not isinstance(e, DynslamError):
+        e.add_note("in the front-end process:\n" + where)
+    return e
+
+
+def open_front_end(reader: Reader, source: Source, config: Config, read_ahead: bool = True
+                   ) -> FrontEnd | ForkedFrontEnd:
+    """A :class:`ForkedFrontEnd` if ``read_ahead`` and it can be used, else a
+    :class:`FrontEnd`."""
+    if read_ahead and can_fork():
+        with contextlib.suppress(OSError):  # no process to spare (a ulimit): work here
+            return ForkedFrontEnd(reader, source, config)
+    return FrontEnd(reader, source, config)
+
+
+def can_fork() -> bool:
+    """Whether :class:`ForkedFrontEnd` may be used: the system can fork, and this process
+    runs no other Python thread (a Dask worker's, say) that the child would inherit in the
+    middle of its work."""
+    if not hasattr(os, "fork"):
+        return False
+    threading = sys.modules.get("threading")
+    return threading is None or threading.active_count() == 1
