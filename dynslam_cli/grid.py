@@ -61,6 +61,8 @@ class GridStack:
         self.origin_row = 0
         self.layers: dict[str, np.ndarray] = {n: np.zeros((0, 0), np.float32) for n in names}
         self.seen = np.zeros((0, 0), bool)
+        self._listed = np.zeros((0, 0), np.int32)  # the last scan that listed each cell
+        self._scans = 0
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -93,6 +95,7 @@ class GridStack:
         seen = np.zeros(new_shape, bool)
         seen[dr:dr + rows, dc:dc + cols] = self.seen
         self.seen = seen
+        self._listed = np.zeros(new_shape, np.int32)
         self.origin_row, self.origin_col = nr0, nc0
 
     def reserve_like(self, other: GridStack) -> None:
@@ -103,6 +106,7 @@ class GridStack:
         self.origin_row, self.origin_col = other.origin_row, other.origin_col
         self.layers = {n: np.zeros(other.shape, layer.dtype) for n, layer in self.layers.items()}
         self.seen = np.zeros(other.shape, bool)
+        self._listed = np.zeros(other.shape, np.int32)
 
     def flat_index_inside(self, x: np.ndarray, y: np.ndarray, margin_cells: int = 0
                           ) -> tuple[np.ndarray, np.ndarray]:
@@ -132,16 +136,19 @@ class GridStack:
         angles = np.ascontiguousarray(angles, dtype=np.float64)
         beams = (sensor.x, sensor.y, sensor.theta, ranges, angles, min_range, max_range,
                  clear_cap)
-        extent = kernels.beam_extent(*beams)
-        x0, y0, x1, y1 = extent
+        x0, y0, x1, y1 = kernels.beam_extent(*beams)
         pad = self.pad
         self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        self._scans += 1
+        if self._scans == np.iinfo(np.int32).max:  # (after two billion scans)
+            self._listed[:] = 0
+            self._scans = 1
         # Free space stops one cell short of a hit: the cell a surface passes through is
         # often partly free, and marking it free from one angle and hit from another would
         # erode walls and flicker D.
         free, hit = kernels.trace_beams(
-            self.seen.reshape(-1).view(np.uint8), self.shape[1],
-            self.resolution, self.origin_row, self.origin_col, *extent, *beams)
+            self.seen.reshape(-1).view(np.uint8), self._listed.reshape(-1), self._scans,
+            self.shape[1], self.resolution, self.origin_row, self.origin_col, *beams)
         return Observation(free=free, hit=hit)
 
     def snapshot(self, name: str) -> OccupancyMap:

@@ -19,10 +19,9 @@ def detect_corners(ranges: np.ndarray, angles: np.ndarray, limit: float, jump_m:
 def beam_extent(sx: float, sy: float, sth: float, ranges: np.ndarray, angles: np.ndarray,
                 min_range: float, max_range: float, cap: float
                 ) -> tuple[float, float, float, float]: ...
-def trace_beams(seen: np.ndarray, cols: int, res: float, row0: int, col0: int, x0: float,
-                y0: float, x1: float, y1: float, sx: float, sy: float, sth: float,
-                ranges: np.ndarray, angles: np.ndarray,
-                min_range: float, max_range: float, cap: float
+def trace_beams(seen: np.ndarray, listed: np.ndarray, mark: int, cols: int, res: float,
+                row0: int, col0: int, sx: float, sy: float, sth: float, ranges: np.ndarray,
+                angles: np.ndarray, min_range: float, max_range: float, cap: float
                 ) -> tuple[np.ndarray, np.ndarray]: ...
 def classify_cells(logodds: np.ndarray, cells: np.ndarray, offsets: np.ndarray, low: float,
                    high: float) -> np.ndarray: ...

@@ -448,23 +448,18 @@ def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
     return x0, y0, x1, y1
 
 
-def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_ssize_t col0,
-                double x0, double y0, double x1, double y1, double sx, double sy, double sth,
+def trace_beams(u8[::1] seen, int[::1] listed, int mark, Py_ssize_t cols, double res,
+                Py_ssize_t row0, Py_ssize_t col0, double sx, double sy, double sth,
                 const double[::1] ranges, const double[::1] angles, double min_range,
                 double max_range, double cap):
     """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
     hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
-    of a hit (to the cap for no return), less any cell hit; each cell listed once. Marks them
-    in ``seen``. (x0, y0, x1, y1) is the beams' extent (beam_extent), which the grid holds."""
-    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0
+    of a hit (to the cap for no return), less any cell hit; each cell listed once, which
+    ``listed[cell] = mark`` records (``mark``: a value no earlier scan used). Marks them in
+    ``seen``. The grid must hold every beam's extent (beam_extent)."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, u, v
     cdef double length, ca, sa, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
-    # which cells are listed: one bit per cell of the extent (+1 cell each side for rounding),
-    # small enough to stay in cache
-    cdef Py_ssize_t umin = <Py_ssize_t>floor(x0 / res) - col0 - 1
-    cdef Py_ssize_t vmin = <Py_ssize_t>floor(y0 / res) - row0 - 1
-    cdef Py_ssize_t w = <Py_ssize_t>floor(x1 / res) - col0 + 2 - umin
-    cdef Py_ssize_t h = <Py_ssize_t>floor(y1 / res) - row0 + 2 - vmin
-    cdef bint hit_i
+    cdef bint hit_i, new
     steps = np.zeros(n, dtype=np.intp)
     dirs = np.zeros((n, 2))
     cells = np.full(n, -1, dtype=np.intp)
@@ -484,51 +479,31 @@ def trace_beams(u8[::1] seen, Py_ssize_t cols, double res, Py_ssize_t row0, Py_s
             length = max(length - res, 0.0)
         cnt[i] = <Py_ssize_t>ceil(length / res)
         total += cnt[i]
-    bits = np.zeros((h * w + 7) // 8, dtype=np.uint8)
-    cdef u8[::1] listed = bits
     hit = np.empty(n, dtype=np.intp)
     free = np.empty(total + 1, dtype=np.intp)
     cdef Py_ssize_t[::1] hv = hit
     cdef Py_ssize_t[::1] fv = free
     with nogil:
-        _list_cells(end, cnt, dv, listed, hv, fv, &nh, &nf, n, cols, vmin, umin, w, u0, v0)
-        for k in range(nh):
-            seen[hv[k]] = 1
-        for k in range(nf):
-            seen[fv[k]] = 1
-    return free[:nf].copy(), hit[:nh].copy()
-
-
-cdef void _list_cells(const Py_ssize_t[::1] end, const Py_ssize_t[::1] cnt,
-                      const double[:, ::1] dv, u8[::1] listed, Py_ssize_t[::1] hv,
-                      Py_ssize_t[::1] fv, Py_ssize_t* n_hit, Py_ssize_t* n_free, Py_ssize_t n,
-                      Py_ssize_t cols, Py_ssize_t vmin, Py_ssize_t umin, Py_ssize_t w,
-                      double u0, double v0) noexcept nogil:
-    """trace_beams' inner loops: each hit cell, then each free sample, listed once."""
-    cdef Py_ssize_t i, k, c, u, v, bit, nh = 0, nf = 0
-    cdef double ca, sa
-    cdef bint new
-    for i in range(n):
-        c = end[i]
-        if c >= 0:
-            bit = (c // cols - vmin) * w + (c % cols - umin)
-            if not listed[bit >> 3] & (1 << (bit & 7)):
-                listed[bit >> 3] |= 1 << (bit & 7)
+        for i in range(n):
+            c = end[i]
+            if c >= 0 and listed[c] != mark:
+                listed[c] = mark
+                seen[c] = 1
                 hv[nh] = c
                 nh += 1
-    for i in range(n):
-        ca = dv[i, 0]
-        sa = dv[i, 1]
-        for k in range(cnt[i]):  # inside the grid: truncation is floor
-            v = <Py_ssize_t>(v0 + k * sa)
-            u = <Py_ssize_t>(u0 + k * ca)
-            bit = (v - vmin) * w + (u - umin)
-            new = not listed[bit >> 3] & (1 << (bit & 7))  # branch-free: half are new
-            listed[bit >> 3] |= 1 << (bit & 7)
-            fv[nf] = v * cols + u
-            nf += new
-    n_hit[0] = nh
-    n_free[0] = nf
+        for i in range(n):
+            ca = dv[i, 0]
+            sa = dv[i, 1]
+            for k in range(cnt[i]):  # inside the grid: truncation is floor
+                v = <Py_ssize_t>(v0 + k * sa)
+                u = <Py_ssize_t>(u0 + k * ca)
+                c = v * cols + u
+                new = listed[c] != mark  # branch-free: about half the samples are new
+                listed[c] = mark
+                seen[c] = 1
+                fv[nf] = c
+                nf += new
+    return free[:nf], hit[:nh]
 
 
 def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
