@@ -1,14 +1,17 @@
-"""The front end: the log's scans, each with the motion since the previous scan (the EKF's
-control input), read and matched ahead of the filter in a second process.
+"""The front end: the log's scans, each with what the filter measures from it alone (the
+motion since the previous scan and the corners seen), read and measured ahead of the filter
+in a second process.
 
 The motion of a scan is the wheel odometry's, or, where the scan matches the key scan well,
-the scan-matched one (:class:`dynslam_cli.scanmatch.ScanMatcher`). Reading the log and matching
-depend on nothing the filter, the pose graph or the maps compute, so where the operating
-system can fork, :class:`ForkedFrontEnd` does both in a child process on another core and
-sends the scans with their motions through a pipe, in log order, a batch at a time; this
-process runs the rest. The results are those of one process, byte for byte. An error in the
-child (a malformed line, say) is raised here once the scans before it have been processed,
-as it would be without the child. :class:`FrontEnd` does the same work in this process.
+the scan-matched one (:class:`dynslam_cli.scanmatch.ScanMatcher`); the corners are the
+landmark observations (:func:`dynslam_cli.localization.observe_corners`). Reading the log
+and measuring depend on nothing the filter, the pose graph or the maps compute, so where the
+operating system can fork, :class:`ForkedFrontEnd` does both in a child process on another
+core and sends the scans with their measurements through a pipe, in log order, a batch at a
+time; this process runs the rest. The results are those of one process, byte for byte. An
+error in the child (a malformed line, say) is raised here once the scans before it have been
+processed, as it would be without the child. :class:`FrontEnd` does the same work in this
+process.
 """
 
 from __future__ import annotations
@@ -22,9 +25,12 @@ import traceback
 from collections.abc import Iterator
 from typing import Any, BinaryIO, NamedTuple, Protocol
 
+import numpy as np
+
 from dynslam_cli.config import Config
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.geometry import relative
+from dynslam_cli.localization import observe_corners
 from dynslam_cli.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
 
@@ -45,13 +51,27 @@ class Motion(NamedTuple):
         return self.source in ("matched", "recovered")
 
 
-class Odometry:
-    """Each scan's :class:`Motion`, from the scans in log order."""
+class Measurement(NamedTuple):
+    """What the filter measures from one scan alone: its motion and its corners ((range,
+    bearing) from the robot, convex); no corners when localization is odometry alone."""
+
+    motion: Motion
+    corners: list[tuple[np.ndarray, bool]]
+
+
+class Measure:
+    """Each scan's :class:`Measurement`, from the scans in log order."""
 
     def __init__(self, config: Config) -> None:
-        self._matcher = (ScanMatcher(config.match, config.ekf.noise) if config.match.enabled
-                         else None)
+        ekf = config.ekf.localization == "ekf"  # else the filter uses neither
+        self._matcher = (ScanMatcher(config.match, config.ekf.noise)
+                         if ekf and config.match.enabled else None)
         self._last_odom: Pose2D | None = None
+        self._corners = config.corners if ekf else None
+
+    def __call__(self, scan: Scan) -> Measurement:
+        corners = observe_corners(scan, self._corners) if self._corners is not None else []
+        return Measurement(self.motion(scan), corners)
 
     def motion(self, scan: Scan) -> Motion:
         if self._matcher is not None:
@@ -72,15 +92,15 @@ class Source(Protocol):
 
 
 class FrontEnd:
-    """The scans of ``reader`` with their motions, in this process. Iterate :meth:`scans`;
-    :meth:`motion` gives the motion of the scan last yielded, :meth:`progress` the bytes read
-    so far and ``stats`` the reader's counts."""
+    """The scans of ``reader`` with their measurements, in this process. Iterate
+    :meth:`scans`; :meth:`measurement` gives the measurement of the scan last yielded,
+    :meth:`progress` the bytes read so far and ``stats`` the reader's counts."""
 
     def __init__(self, reader: Reader, source: Source, config: Config) -> None:
         self._reader = reader
         self._source = source
-        self._odometry = Odometry(config)
-        self._motion: Motion | None = None
+        self._measure = Measure(config)
+        self._measurement: Measurement | None = None
 
     @property
     def stats(self) -> Any:
@@ -88,12 +108,12 @@ class FrontEnd:
 
     def scans(self) -> Iterator[Scan]:
         for scan in self._reader.scans():
-            self._motion = self._odometry.motion(scan)
+            self._measurement = self._measure(scan)
             yield scan
 
-    def motion(self, scan: Scan) -> Motion:
-        assert self._motion is not None
-        return self._motion
+    def measurement(self, scan: Scan) -> Measurement:
+        assert self._measurement is not None
+        return self._measurement
 
     def progress(self) -> tuple[int, int]:
         return self._source.progress()
@@ -109,7 +129,7 @@ class ForkedFrontEnd:
     def __init__(self, reader: Reader, source: Source, config: Config) -> None:
         self.stats = reader.stats
         self._progress = (0, 0)
-        self._motions: list[Motion] = []
+        self._measurements: list[Measurement] = []
         self._next = 0
         read_end, write_end = os.pipe()
         try:
@@ -134,7 +154,7 @@ class ForkedFrontEnd:
                 raise RuntimeError(f"the front-end process ended unexpectedly "
                                    f"({self._reap()})") from None
             if kind == "scans":
-                scans, self._motions, self._progress = payload
+                scans, self._measurements, self._progress = payload
                 for self._next, scan in enumerate(scans):
                     yield scan
             elif kind == "end":
@@ -143,8 +163,8 @@ class ForkedFrontEnd:
             else:
                 raise payload
 
-    def motion(self, scan: Scan) -> Motion:
-        return self._motions[self._next]
+    def measurement(self, scan: Scan) -> Measurement:
+        return self._measurements[self._next]
 
     def progress(self) -> tuple[int, int]:
         return self._progress
@@ -166,26 +186,26 @@ class ForkedFrontEnd:
 
 
 def _child(front: FrontEnd, fd: int) -> None:
-    """Run the front end, sending batches of (scans, motions, progress), then ("end",
+    """Run the front end, sending batches of (scans, measurements, progress), then ("end",
     stats) or ("error", exception); exit without running the parent's clean-up."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     code = 0
     scans: list[Scan] = []
-    motions: list[Motion] = []
+    measurements: list[Measurement] = []
     try:
         with os.fdopen(fd, "wb") as pipe:
             try:
                 for scan in front.scans():
                     scans.append(scan)
-                    motions.append(front.motion(scan))
+                    measurements.append(front.measurement(scan))
                     if len(scans) == BATCH:
-                        _send(pipe, "scans", (scans, motions, front.progress()))
-                        scans, motions = [], []
+                        _send(pipe, "scans", (scans, measurements, front.progress()))
+                        scans, measurements = [], []
                 end: tuple[str, object] = ("end", front.stats)
             except Exception as e:
                 end = ("error", _picklable(e))
             if scans:  # the scans before the end (or the error)
-                _send(pipe, "scans", (scans, motions, front.progress()))
+                _send(pipe, "scans", (scans, measurements, front.progress()))
             _send(pipe, *end)
     except BaseException:  # the parent has gone (broken pipe) or the child was stopped
         code = 1

@@ -91,12 +91,18 @@ def to_range_bearing(corner: Corner, laser: Pose2D) -> np.ndarray:
     return np.array([math.hypot(p.x, p.y), math.atan2(p.y, p.x)])
 
 
+def observe_corners(scan: Scan, config: CornerConfig) -> list[tuple[np.ndarray, bool]]:
+    """Corners of the scan as ((range, bearing) from the robot, convex): the landmark
+    observations."""
+    corners = detect_corners(scan.ranges, scan.angles, scan.max_range, config)
+    return [(to_range_bearing(c, scan.laser), c.convex) for c in corners]
+
+
 class CornerSlam:
     """The EKF, its landmark bookkeeping and the tentative landmarks."""
 
-    def __init__(self, start: Pose2D, config: EkfConfig, corners: CornerConfig) -> None:
+    def __init__(self, start: Pose2D, config: EkfConfig) -> None:
         self.config = config
-        self.corner_config = corners
         self.ekf = Ekf(np.array([start.x, start.y, start.theta]), config.noise)
         self.tracks: list[LandmarkTrack] = []
         self.candidates: list[Candidate] = []
@@ -116,11 +122,6 @@ class CornerSlam:
         scale = (self.config.matched_noise_scale if matched
                  else 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE)
         self.ekf.predict(np.array([increment.x, increment.y, increment.theta]), scale)
-
-    def detect(self, scan: Scan) -> list[tuple[np.ndarray, bool]]:
-        """Corners of the scan as ((range, bearing) from the robot, convex)."""
-        corners = detect_corners(scan.ranges, scan.angles, scan.max_range, self.corner_config)
-        return [(to_range_bearing(c, scan.laser), c.convex) for c in corners]
 
     def associate(self, observations: list[tuple[np.ndarray, bool]]
                   ) -> tuple[list[tuple[int, np.ndarray]], set[int]]:

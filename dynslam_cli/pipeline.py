@@ -36,7 +36,7 @@ from dynslam_cli.dynamic import (
     neighbourhood_offsets,
     radius_cells,
 )
-from dynslam_cli.frontend import Motion, Odometry
+from dynslam_cli.frontend import Measure, Measurement
 from dynslam_cli.geometry import compose, relative, transform_points, wrap_angles
 from dynslam_cli.grid import GridStack, Observation, OccupancyMap
 from dynslam_cli.localization import CornerSlam
@@ -187,21 +187,21 @@ class ScanStore:
             yield Scan(stamp, ranges.astype(np.float64), angles, max_range, Pose2D(), laser)
 
 
-class Motions(Protocol):
-    def motion(self, scan: Scan) -> Motion: ...
+class Measurements(Protocol):
+    def measurement(self, scan: Scan) -> Measurement: ...
 
 
 class DynamicSlam:
-    """One run of the algorithm; feed it scans in log order with :meth:`step`. Each scan's
-    motion comes from ``motions`` (a front end that has computed it already) or, by default,
-    is computed here (:class:`dynslam_cli.frontend.Odometry`)."""
+    """One run of the algorithm; feed it scans in log order with :meth:`step`. What is
+    measured from each scan alone (its motion and corners) comes from ``front`` (a front end
+    that has measured it already) or, by default, is measured here."""
 
-    def __init__(self, config: Config, motions: Motions | None = None) -> None:
+    def __init__(self, config: Config, front: Measurements | None = None) -> None:
         self.config = config
         self.mapper = DynamicMapper(config)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
-        self._motions = motions if motions is not None else Odometry(config)
+        self._measure = front.measurement if front is not None else Measure(config)
         self._motion_sources: Counter[str] = Counter()
         use_graph = config.loop.enabled and config.ekf.localization == "ekf"
         self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
@@ -236,14 +236,13 @@ class DynamicSlam:
     def track_with_ekf(self, scan: Scan) -> Pose2D:
         """Sec. 4: predict from the (scan-matched) motion, detect corners, associate,
         classify landmarks by S^{t-1} (Table 3), correct with the static ones."""
-        increment, matched = self.motion_since_last_scan(scan)
+        motion, observations = self.measure(scan)
         if self._slam is None:
-            self._slam = CornerSlam(scan.odom, self.config.ekf, self.config.corners)
+            self._slam = CornerSlam(scan.odom, self.config.ekf)
             return scan.odom
         slam = self._slam
         slam.scan_index = self._count
-        slam.predict(increment, matched, scan.has_odometry)
-        observations = slam.detect(scan)
+        slam.predict(motion.increment, motion.matched, scan.has_odometry)
         pairs, not_new = slam.associate(observations)
         slam.classify(self.mapper.classify_landmarks(self.to_map(slam.landmark_positions())))
         slam.correct(pairs)
@@ -272,11 +271,12 @@ class DynamicSlam:
             return points
         return transform_points(self._loops.correction(len(self._loops.front) - 1), points)
 
-    def motion_since_last_scan(self, scan: Scan) -> tuple[Pose2D, bool]:
-        """The control input: scan-matched motion where the match is good, else odometry."""
-        motion = self._motions.motion(scan)
-        self._motion_sources[motion.source] += 1
-        return motion.increment, motion.matched
+    def measure(self, scan: Scan) -> Measurement:
+        """The control input (scan-matched motion where the match is good, else odometry)
+        and the corners seen."""
+        measured = self._measure(scan)
+        self._motion_sources[measured.motion.source] += 1
+        return measured
 
     def current(self) -> SlamResult:
         """The state so far, as mapped online (for snapshots)."""
@@ -373,10 +373,10 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
 
 def run(scans: Iterable[Scan], config: Config,
         on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None,
-        motions: Motions | None = None) -> SlamResult:
+        front: Measurements | None = None) -> SlamResult:
     """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
     after each scan (progress, snapshots)."""
-    slam = DynamicSlam(config, motions)
+    slam = DynamicSlam(config, front)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:

@@ -1,5 +1,5 @@
-"""The front end in a second process gives exactly what it gives in this one, errors
-included, and never leaves its process behind."""
+"""The front end (reading, scan matching, corners) in a second process gives exactly what it
+gives in this one, errors included, and never leaves its process behind."""
 
 from __future__ import annotations
 
@@ -26,7 +26,9 @@ def drain(kind: type, path: str) -> tuple[list, object, Exception | None]:
     got, error = [], None
     try:
         for scan in front.scans():
-            got.append((scan.stamp, scan.ranges.tobytes(), scan.odom, front.motion(scan)))
+            m = front.measurement(scan)
+            got.append((scan.stamp, scan.ranges.tobytes(), scan.odom, m.motion,
+                        [(z.tobytes(), convex) for z, convex in m.corners]))
     except InputError as e:
         error = e
     finally:
@@ -40,10 +42,10 @@ def test_forked_front_end_gives_the_same_scans_motions_and_counts():
     here, stats_here, _ = drain(FrontEnd, log)
     there, stats_there, _ = drain(ForkedFrontEnd, log)
     assert len(here) == 451
-    assert there == here  # stamps, ranges bit for bit, odometry, motions
+    assert there == here  # stamps, ranges bit for bit, odometry, motions, corners
     assert stats_there == stats_here
-    sources = {m.source for *_, m in here}
-    assert "matched" in sources  # the scan matcher really ran
+    assert "matched" in {motion.source for *_, motion, _ in here}  # the matcher ran
+    assert sum(len(corners) for *_, corners in here) > 100  # and the corner detector
 
 
 def test_error_midway_comes_after_the_scans_before_it(tmp_path):

@@ -75,7 +75,7 @@ def test_update_pulls_pose_and_keeps_covariance_symmetric_positive():
 
 
 def _slam_with_landmark(convex: bool) -> CornerSlam:
-    slam = CornerSlam(Pose2D(), EkfConfig(), CornerConfig())
+    slam = CornerSlam(Pose2D(), EkfConfig())
     slam.ekf.add_landmark(np.array([2.0, 0.0]))
     from dynslam_cli.localization import LandmarkTrack
 
