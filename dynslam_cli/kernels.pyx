@@ -13,6 +13,7 @@ the GIL, so threads (a Dask worker's, say) can process several logs at once.
 import numpy as np
 
 from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+from libc.stdlib cimport calloc, free, malloc, realloc
 
 ctypedef unsigned char u8
 
@@ -618,63 +619,142 @@ def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t st
 
 
 # -- pose graph: the sparse normal equations ------------------------------------------------
-def reverse_cuthill_mckee(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1] ej):
-    """An ordering of the n nodes of the graph with edges (ei[k], ej[k]) that keeps the
-    neighbours of each node close to it in the order (reverse Cuthill-McKee: breadth first
-    from a node of least degree, neighbours by increasing degree, then reversed), so a
-    Cholesky factorization in that order fills in little. Ties go to the lower index."""
-    cdef Py_ssize_t m = ei.shape[0], k, a, b, head = 0, tail = 0, s, p, q, t, v
-    degree_arr = np.zeros(n, dtype=np.intp)
-    cdef Py_ssize_t[::1] degree = degree_arr
-    for k in range(m):
-        if ei[k] != ej[k]:
-            degree[ei[k]] += 1
-            degree[ej[k]] += 1
-    start_arr = np.zeros(n + 1, dtype=np.intp)
-    cdef Py_ssize_t[::1] start = start_arr
-    for a in range(n):
-        start[a + 1] = start[a] + degree[a]
-    fill_arr = start_arr[:n].copy()
-    adj_arr = np.empty(start[n], dtype=np.intp)
-    cdef Py_ssize_t[::1] fill = fill_arr, adj = adj_arr
-    for k in range(m):
-        a, b = ei[k], ej[k]
-        if a != b:
-            adj[fill[a]] = b
-            fill[a] += 1
-            adj[fill[b]] = a
-            fill[b] += 1
+cdef void _heap_push(long long* heap, Py_ssize_t* size, long long key) noexcept nogil:
+    cdef Py_ssize_t k = size[0], parent
+    size[0] += 1
+    while k > 0:
+        parent = (k - 1) // 2
+        if heap[parent] <= key:
+            break
+        heap[k] = heap[parent]
+        k = parent
+    heap[k] = key
+
+
+cdef long long _heap_pop(long long* heap, Py_ssize_t* size) noexcept nogil:
+    cdef long long top = heap[0], last
+    cdef Py_ssize_t k = 0, child, n
+    size[0] -= 1
+    n = size[0]
+    last = heap[n]
+    while True:
+        child = 2 * k + 1
+        if child >= n:
+            break
+        if child + 1 < n and heap[child + 1] < heap[child]:
+            child += 1
+        if heap[child] >= last:
+            break
+        heap[k] = heap[child]
+        k = child
+    heap[k] = last
+    return top
+
+
+def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1] ej):
+    """An ordering of the n nodes of the graph with edges (ei[k], ej[k]) for a Cholesky
+    factorization that fills in little: repeatedly the node of least degree (ties: the lower
+    index) is eliminated, its neighbours becoming neighbours of each other (exact minimum
+    degree on the elimination graph, George & Liu 1989)."""
+    cdef Py_ssize_t m = ei.shape[0], k, a, b, v, u, w, p, q, step, hsize = 0, hcap
+    cdef Py_ssize_t dv, du, fill
+    cdef long long key
+    cdef int stamp = 0
+    deg_arr = np.zeros(n, dtype=np.intp)
+    cap_arr = np.zeros(n, dtype=np.intp)
+    mark_arr = np.zeros(n, dtype=np.intc)
+    done_arr = np.zeros(n, dtype=np.uint8)
     order_arr = np.empty(n, dtype=np.intp)
-    seen_arr = np.zeros(n, dtype=np.uint8)
-    cdef Py_ssize_t[::1] order = order_arr
-    cdef u8[::1] seen = seen_arr
-    while tail < n:  # one breadth-first pass per connected component
-        s = -1
+    cdef Py_ssize_t[::1] deg = deg_arr, cap = cap_arr, order = order_arr
+    cdef int[::1] mark = mark_arr
+    cdef u8[::1] done = done_arr
+    cdef Py_ssize_t** adj = <Py_ssize_t**>calloc(n, sizeof(Py_ssize_t*))
+    cdef Py_ssize_t* grown
+    hcap = 2 * m + 2 * n + 1
+    cdef long long* heap = <long long*>malloc(hcap * sizeof(long long))
+    cdef long long* bigger
+    if adj == NULL or heap == NULL:
+        free(adj)
+        free(heap)
+        raise MemoryError()
+    try:
+        for k in range(m):  # room for every listed neighbour (duplicates dropped below)
+            if ei[k] != ej[k]:
+                cap[ei[k]] += 1
+                cap[ej[k]] += 1
         for a in range(n):
-            if not seen[a] and (s < 0 or degree[a] < degree[s]):
-                s = a
-        seen[s] = 1
-        order[tail] = s
-        tail += 1
-        while head < tail:
-            v = order[head]
-            head += 1
-            q = tail
-            for p in range(start[v], start[v + 1]):
-                a = adj[p]
-                if not seen[a]:
-                    seen[a] = 1
-                    order[tail] = a
-                    tail += 1
-            for p in range(q + 1, tail):  # insertion sort: (degree, index)
-                t = order[p]
-                k = p - 1
-                while k >= q and (degree[order[k]] > degree[t]
-                                  or (degree[order[k]] == degree[t] and order[k] > t)):
-                    order[k + 1] = order[k]
-                    k -= 1
-                order[k + 1] = t
-    return order_arr[::-1].copy()
+            cap[a] = max(cap[a], 4)
+            adj[a] = <Py_ssize_t*>malloc(cap[a] * sizeof(Py_ssize_t))
+            if adj[a] == NULL:
+                raise MemoryError()
+        for k in range(m):
+            a, b = ei[k], ej[k]
+            if a != b:
+                adj[a][deg[a]] = b
+                deg[a] += 1
+                adj[b][deg[b]] = a
+                deg[b] += 1
+        for a in range(n):  # drop repeated edges
+            stamp += 1
+            mark[a] = stamp
+            q = 0
+            for p in range(deg[a]):
+                w = adj[a][p]
+                if mark[w] != stamp:
+                    mark[w] = stamp
+                    adj[a][q] = w
+                    q += 1
+            deg[a] = q
+            _heap_push(heap, &hsize, deg[a] * n + a)
+        for step in range(n):
+            while True:  # the least degree still current (stale entries are skipped)
+                key = _heap_pop(heap, &hsize)
+                v = key % n
+                if not done[v] and key == deg[v] * n + v:
+                    break
+            done[v] = 1
+            order[step] = v
+            dv = deg[v]
+            for p in range(dv):  # each neighbour u: adj(u) ∪ adj(v) less u and v
+                u = adj[v][p]
+                stamp += 1
+                mark[u] = stamp
+                mark[v] = stamp
+                du = 0
+                for q in range(deg[u]):
+                    w = adj[u][q]
+                    if mark[w] != stamp:
+                        mark[w] = stamp
+                        adj[u][du] = w
+                        du += 1
+                for q in range(dv):
+                    w = adj[v][q]
+                    if mark[w] != stamp:
+                        mark[w] = stamp
+                        if du == cap[u]:
+                            cap[u] *= 2
+                            grown = <Py_ssize_t*>realloc(adj[u], cap[u] * sizeof(Py_ssize_t))
+                            if grown == NULL:
+                                raise MemoryError()
+                            adj[u] = grown
+                        adj[u][du] = w
+                        du += 1
+                deg[u] = du
+                if hsize == hcap:
+                    hcap *= 2
+                    bigger = <long long*>realloc(heap, hcap * sizeof(long long))
+                    if bigger == NULL:
+                        raise MemoryError()
+                    heap = bigger
+                _heap_push(heap, &hsize, du * n + u)
+            free(adj[v])
+            adj[v] = NULL
+    finally:
+        for a in range(n):
+            free(adj[a])
+        free(adj)
+        free(heap)
+    return order_arr
 
 
 def solve_spd(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indices,

@@ -4,7 +4,8 @@ Nodes are robot poses (x, y, θ) at key scans; an edge says "node j seen from no
 z, with information Ω" (3×3). The error of an edge is the pose of j relative to i, seen from
 z: ``e = t2v(Z⁻¹ (Xᵢ⁻¹ Xⱼ))``. Gauss-Newton solves the sparse normal equations (the first
 node is held fixed) until the step is tiny, by an LDLᵀ factorization with the nodes in
-reverse Cuthill-McKee order (a chain with loops then fills in little). Loop-closure edges
+minimum-degree order (so it fills in little, even where the robot went round the same place
+many times). Loop-closure edges
 carry a Cauchy kernel, so a wrong one pulls only softly.
 """
 
@@ -72,7 +73,7 @@ class PoseGraph:
         by_column = np.argsort(cols, kind="stable")  # compressed columns; duplicates summed
         indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=3 * n))))
         indices = rows[by_column]
-        node_order = kernels.reverse_cuthill_mckee(n, i, j)
+        node_order = kernels.minimum_degree(n, i, j)
         order = (3 * node_order[:, None] + np.arange(3)).ravel()
         g_index = np.concatenate([(3 * i[:, None] + np.arange(3)).ravel(),
                                   (3 * j[:, None] + np.arange(3)).ravel()])

@@ -121,14 +121,37 @@ def test_sparse_solve_matches_dense_in_any_order():
                           np.arange(n, dtype=np.intp), b)
 
 
-def test_reverse_cuthill_mckee_orders_a_chain_end_to_end_and_covers_every_node():
-    n = 50
-    i = np.arange(n - 1, dtype=np.intp)
-    order = kernels.reverse_cuthill_mckee(n, i, i + 1)
-    assert list(order) == list(range(n - 1, -1, -1))  # from the end of lowest index
-    # a ring 0-1-2-3, a chain 5-6-7, lone nodes 4 and 8: each component breadth first from
-    # its node of least degree (neighbours by degree, then index), lone ones first; reversed
-    ei = np.array([0, 1, 2, 0, 5, 6], dtype=np.intp)
-    ej = np.array([1, 2, 3, 3, 6, 7], dtype=np.intp)
-    order = kernels.reverse_cuthill_mckee(9, ei, ej)
-    assert list(order) == [2, 3, 1, 0, 7, 6, 5, 8, 4]
+def _fill(n: int, ei: np.ndarray, ej: np.ndarray, order: np.ndarray) -> int:
+    """Entries of the Cholesky factor below the diagonal, eliminating in ``order``."""
+    adj = [set() for _ in range(n)]
+    for a, b in zip(ei, ej, strict=True):
+        if a != b:
+            adj[a].add(b)
+            adj[b].add(a)
+    done, fill = set(), 0
+    for v in order:
+        nb = adj[v] - done
+        fill += len(nb)
+        for u in nb:
+            adj[u] |= nb - {u}
+        done.add(v)
+    return fill
+
+
+def test_minimum_degree_order_fills_in_less():
+    # a star: the leaves go first, lowest index first, until the centre ties with the last
+    leaves = np.arange(1, 8, dtype=np.intp)
+    order = kernels.minimum_degree(8, np.zeros(7, dtype=np.intp), leaves)
+    assert list(order) == [1, 2, 3, 4, 5, 6, 0, 7]
+    # a chain that passes the same places again and again, like a robot going round a room
+    n = 400
+    ei = list(range(n - 1))
+    ej = list(range(1, n))
+    for k in range(0, n - 50, 7):
+        ei.append(k)
+        ej.append(k + 40 + k % 11)
+    ei, ej = np.array(ei, dtype=np.intp), np.array(ej, dtype=np.intp)
+    order = kernels.minimum_degree(n, ei, ej)
+    assert sorted(order) == list(range(n))
+    assert _fill(n, ei, ej, order) < 0.5 * _fill(n, ei, ej, np.arange(n))
+    assert list(kernels.minimum_degree(n, ei, ej)) == list(order)  # deterministic
