@@ -162,10 +162,10 @@ class CornerSlam:
             pairs.append((i, observations[k][0]))
         return pairs, used_obs | set(near_something)
 
-    def classify(self, states: np.ndarray) -> None:
-        """Table 3 for every landmark, from the S^{t-1} state at its place."""
-        for track, state in zip(self.tracks, states, strict=True):
-            track.cls = TABLE_3[int(state)]
+    def classify(self, landmarks: list[int], states: np.ndarray) -> None:
+        """Table 3 for these landmarks, from the S^{t-1} state at their places."""
+        for i, state in zip(landmarks, states, strict=True):
+            self.tracks[i].cls = TABLE_3[int(state)]
 
     def correct(self, pairs: list[tuple[int, np.ndarray]]) -> int:
         """Update with every associated static landmark; returns how many were used."""

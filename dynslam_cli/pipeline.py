@@ -244,7 +244,10 @@ class DynamicSlam:
         slam.scan_index = self._count
         slam.predict(motion.increment, motion.matched, scan.has_odometry)
         pairs, not_new = slam.associate(observations)
-        slam.classify(self.mapper.classify_landmarks(self.to_map(slam.landmark_positions())))
+        seen = [i for i, _ in pairs]  # only these can correct the pose: classify them
+        if seen:
+            places = self.to_map(slam.landmark_positions()[seen])
+            slam.classify(seen, self.mapper.classify_landmarks(places))
         slam.correct(pairs)
         slam.add_new(observations, not_new)
         slam.prune()

@@ -106,7 +106,7 @@ def test_association_uses_each_landmark_once():
 def test_table_3(state, cls):
     assert TABLE_3[state] == cls
     slam = _slam_with_landmark(convex=True)
-    slam.classify(np.array([state]))
+    slam.classify([0], np.array([state]))
     assert slam.tracks[0].cls == cls
     before = slam.ekf.x.copy()
     slam.ekf.predict(np.array([0.0, 0.0, 0.0]), 10.0)
