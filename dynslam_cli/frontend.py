@@ -35,6 +35,7 @@ from dynslam_cli.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
 
 BATCH = 16  # scans per message from the child
+PIPE_BYTES = 1 << 20
 
 
 class Motion(NamedTuple):
@@ -132,6 +133,7 @@ class ForkedFrontEnd:
         self._measurements: list[Measurement] = []
         self._next = 0
         read_end, write_end = os.pipe()
+        _widen(write_end)
         try:
             self._pid = os.fork()
         except OSError:
@@ -211,6 +213,16 @@ def _child(front: FrontEnd, fd: int) -> None:
         code = 1
     finally:
         os._exit(code)
+
+
+def _widen(fd: int) -> None:
+    """Let the pipe hold ~300 scans (1 MiB; 64 KiB by default): the child can then run
+    ahead through the stretches where this process is slow (loop closures) and need not
+    fall behind where it is fast. Where pipes cannot be resized, the default it is."""
+    with contextlib.suppress(ImportError, AttributeError, OSError):
+        import fcntl  # (POSIX only)
+
+        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)  # (Linux only)
 
 
 def _send(pipe: BinaryIO, kind: str, payload: object) -> None:
