@@ -19,6 +19,7 @@ closure), the scans around the new node are matched against those around the old
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -113,13 +114,18 @@ FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
 @dataclass
 class LikelihoodField:
     """exp(−d²/2σ²) of the distance d from each cell to the nearest occupied cell of the
-    submap, on a fine grid, and its max-pooled copy for the coarse pass."""
+    submap, on a fine grid, and its max-pooled copy for the coarse pass; the submap's points
+    indexed, and their normals for ICP (computed when first asked: most matches stop
+    before ICP)."""
 
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
-    normals: np.ndarray
     index: PointIndex
+
+    @functools.cached_property
+    def normals(self) -> np.ndarray:
+        return self.index.normals(NORMAL_NEIGHBOURS)
 
 
 def likelihood_field(points: np.ndarray) -> LikelihoodField:
@@ -132,7 +138,7 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     kernels.splat_max(fine, rows, cols, FINE_KERNEL)
     kernels.splat_max(coarse, rows, cols, COARSE_KERNEL)
     index = PointIndex(points)
-    return LikelihoodField(fine, coarse, lo, index.normals(NORMAL_NEIGHBOURS), index)
+    return LikelihoodField(fine, coarse, lo, index)
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
