@@ -11,8 +11,6 @@ carry a Cauchy kernel, so a wrong one pulls only softly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from dynslam_cli import kernels
@@ -21,15 +19,26 @@ from dynslam_cli.geometry import wrap_angles
 CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 
 
-@dataclass
 class Edges:
-    """Edges as parallel arrays (grown by :meth:`PoseGraph.add_edge`)."""
+    """The edges as parallel arrays, grown by doubling: nodes ``i`` and ``j``, measurement
+    ``z`` (j seen from i), information ``info`` (3×3), ``robust`` (a loop closure)."""
 
-    i: list[int]
-    j: list[int]
-    z: list[np.ndarray]
-    info: list[np.ndarray]
-    robust: list[bool]
+    def __init__(self) -> None:
+        self.count = 0
+        self._store = (np.zeros(64, np.intp), np.zeros(64, np.intp), np.zeros((64, 3)),
+                       np.zeros((64, 3, 3)), np.zeros(64, bool))
+
+    def add(self, *edge: object) -> None:
+        k = self.count
+        if k == len(self._store[0]):
+            self._store = tuple(np.concatenate((a, np.zeros_like(a))) for a in self._store)
+        for array, value in zip(self._store, edge, strict=True):
+            array[k] = value
+        self.count = k + 1
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """(i, j, z, info, robust), the filled part."""
+        return tuple(a[:self.count] for a in self._store)
 
 
 class PoseGraph:
@@ -38,7 +47,7 @@ class PoseGraph:
     def __init__(self) -> None:
         self.poses = np.zeros((0, 3))
         self._capacity_poses = np.zeros((64, 3))
-        self.edges = Edges([], [], [], [], [])
+        self.edges = Edges()
 
     def add_node(self, pose: np.ndarray) -> int:
         n = len(self.poses)
@@ -52,22 +61,13 @@ class PoseGraph:
 
     def add_edge(self, i: int, j: int, z: np.ndarray, info: np.ndarray,
                  robust: bool = False) -> None:
-        e = self.edges
-        e.i.append(i)
-        e.j.append(j)
-        e.z.append(np.asarray(z, dtype=np.float64))
-        e.info.append(np.asarray(info, dtype=np.float64))
-        e.robust.append(robust)
+        self.edges.add(i, j, z, info, robust)
 
     def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C) -> None:
         """Gauss-Newton over all nodes but the first (held where it is)."""
-        if not self.edges.i:
+        if not self.edges.count:
             return
-        i = np.asarray(self.edges.i)
-        j = np.asarray(self.edges.j)
-        z = np.asarray(self.edges.z)
-        info = np.asarray(self.edges.info)
-        robust = np.asarray(self.edges.robust)
+        i, j, z, info, robust = self.edges.arrays()
         n = len(self.poses)
         rows, cols = _hessian_pattern(i, j)
         by_column = np.argsort(cols, kind="stable")  # compressed columns; duplicates summed
