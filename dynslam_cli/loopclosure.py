@@ -19,6 +19,7 @@ closure), the scans around the new node are matched against those around the old
 
 from __future__ import annotations
 
+import bisect
 import functools
 import math
 from collections import OrderedDict
@@ -290,14 +291,15 @@ class LoopCloser:
         self.path.append(path)
 
     def _candidates(self, k: int, radius: float) -> list[int]:
-        path = np.asarray(self.path)
-        old = np.flatnonzero(path <= path[k] - self.cfg.min_travel_m)
-        if len(old) == 0:
+        """Nodes driven at least ``min_travel_m`` before node k (a prefix: the distance
+        driven only grows) within ``radius`` of it, nearest first."""
+        old = bisect.bisect_right(self.path, self.path[k] - self.cfg.min_travel_m)
+        if old == 0:
             return []
-        xy = self.graph.poses[old, :2]
+        xy = self.graph.poses[:old, :2]
         d = np.hypot(xy[:, 0] - self.graph.poses[k, 0], xy[:, 1] - self.graph.poses[k, 1])
-        near = old[d <= radius]
-        return [int(i) for i in near[np.argsort(d[d <= radius], kind="stable")]]
+        near = np.flatnonzero(d <= radius)
+        return [int(i) for i in near[np.argsort(d[near], kind="stable")]]
 
     def _try_closure(self, k: int) -> bool:
         cfg = self.cfg
