@@ -6,6 +6,7 @@ Heavy modules are imported inside the commands so ``dynslam --help`` starts fast
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -24,10 +25,20 @@ def _fail(message: str) -> None:
     sys.exit(1)
 
 
+class Terminated(BaseException):
+    """SIGTERM (a CI job's time limit, ``kill``): stop as for Ctrl-C, cleaning up."""
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def _guarded(work: Callable[[], Any]) -> Any:
-    """Run ``work``; known errors become one line on stderr and exit code 1."""
+    """Run ``work``; known errors become one line on stderr and exit code 1; Ctrl-C (130)
+    and SIGTERM (143) leave no output folder or temporary files behind."""
     from dynslam_cli.errors import DynslamError
 
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         return work()
     except DynslamError as e:
@@ -35,6 +46,9 @@ def _guarded(work: Callable[[], Any]) -> Any:
     except KeyboardInterrupt:
         click.echo("dynslam: interrupted; no output written", err=True)
         sys.exit(130)
+    except Terminated:
+        click.echo("dynslam: terminated; no output written", err=True)
+        sys.exit(143)
     except BrokenPipeError:
         sys.exit(1)
 

@@ -100,6 +100,26 @@ def test_interrupt_leaves_nothing_and_exits_130(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_sigterm_leaves_nothing_and_exits_143(tmp_path):
+    # a CI job's time limit: the output folder's temporary twin goes too, and so does the
+    # read-ahead process
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "process", "-", "-o",
+                             str(tmp_path / "out"), "-q"], stdin=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdin is not None
+    proc.stdin.write("".join(flaser(t=i) for i in range(1, 500)).encode())
+    proc.stdin.flush()
+    time.sleep(2.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert b"terminated; no output written" in err and b"Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_bad_config_exit_1(cli, tmp_path):
     cfg = tmp_path / "c.toml"
     cfg.write_text("[map]\nsize = 3\n")
