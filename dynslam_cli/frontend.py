@@ -5,8 +5,8 @@ in a second process.
 The motion of a scan is the wheel odometry's, or, where the scan matches the key scan well,
 the scan-matched one (:class:`dynslam_cli.scanmatch.ScanMatcher`); the corners are the
 landmark observations (:func:`dynslam_cli.localization.observe_corners`). Reading the log
-and measuring depend on nothing the filter, the pose graph or the maps compute, so where the
-operating system can fork, :class:`ForkedFrontEnd` does both in a child process on another
+and measuring depend on nothing the filter, the pose graph or the maps compute, so on Linux
+(:func:`can_fork`) :class:`ForkedFrontEnd` does both in a forked child process on another
 core and sends the scans with their measurements through a pipe, in log order, a batch at a
 time; this process runs the rest. The results are those of one process, byte for byte. An
 error in the child (a malformed line, say) is raised here once the scans before it have been
@@ -256,10 +256,10 @@ def open_front_end(reader: Reader, source: Source, config: Config, read_ahead: b
 
 
 def can_fork() -> bool:
-    """Whether :class:`ForkedFrontEnd` may be used: the system can fork, and this process
-    runs no other Python thread (a Dask worker's, say) that the child would inherit in the
-    middle of its work."""
-    if not hasattr(os, "fork"):
+    """Whether :class:`ForkedFrontEnd` may be used: on Linux (macOS system libraries are not
+    safe to use in a forked child; Windows cannot fork), in a process that runs no other
+    Python thread (a Dask worker's, say) that the child would inherit in mid-work."""
+    if not sys.platform.startswith("linux"):
         return False
     threading = sys.modules.get("threading")
     return threading is None or threading.active_count() == 1

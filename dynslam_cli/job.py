@@ -41,8 +41,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                 read_ahead: bool = True) -> tuple[dict[str, Any], Any]:
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
     ``on_progress(bytes_done, bytes_total)`` is called every few scans. ``read_ahead``: read
-    and scan-match in a second process (where the system can fork; see
-    dynslam_cli.frontend)."""
+    and measure the scans in a second process (on Linux; see dynslam_cli.frontend)."""
     from formats import open_log
     from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from formats.picture import SnapshotWriter
