@@ -166,8 +166,7 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
         summary, stats = process_log(log, target, force, options, config, format_name,
                                      snapshot_every, read_ahead=read_ahead)
     else:
-        from tqdm import tqdm
-
+        tqdm = _progress_bar()
         with tqdm(unit="B", unit_scale=True, desc=Path(log).name, file=sys.stderr,
                   leave=False) as bar:
 
@@ -180,6 +179,15 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
                                          snapshot_every, on_progress, read_ahead)
     _report_warnings(summary["input"]["path"], stats)
     return summary
+
+
+def _progress_bar() -> Any:
+    """tqdm, without its monitor thread: a process with a second thread does not fork a
+    read-ahead process (dynslam_cli.frontend.can_fork)."""
+    from tqdm import tqdm
+
+    tqdm.monitor_interval = 0
+    return tqdm
 
 
 def _report_warnings(name: str, stats: Any) -> None:
@@ -239,8 +247,6 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
         overrides["dynamic"] = {"enabled": False}
 
     def work() -> None:
-        from tqdm import tqdm
-
         from dynslam_cli.batch import expand_logs, read_manifest, run_batch, run_dask, run_local
         from dynslam_cli.config import load_config
 
@@ -252,6 +258,7 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
         client = _dask_client(scheduler) if scheduler else None
         execute = ((lambda js: run_dask(js, client)) if client is not None
                    else (lambda js: run_local(js, jobs)))
+        tqdm = _progress_bar()
         with tqdm(total=len(rows), unit="log", disable=quiet or None, file=sys.stderr) as bar:
             results = run_batch(rows, outroot, force, overrides,
                                 {"topic": topic} if topic else {}, config_file, execute,
