@@ -94,3 +94,16 @@ def test_process_with_and_without_read_ahead_writes_the_same_files(cli, tmp_path
         assert (outs[0] / name).read_bytes() == (outs[1] / name).read_bytes(), name
     traj = np.loadtxt(outs[0] / "trajectory.tum")
     assert len(traj) > 100
+
+
+def test_the_progress_bar_starts_no_thread():
+    # a second thread would keep 'dynslam process' on a terminal from reading ahead
+    import io
+    import threading
+
+    from dynslam_cli.cli import _progress_bar
+
+    before = threading.active_count()
+    with _progress_bar()(total=3, file=io.StringIO()) as bar:
+        bar.update(1)
+        assert threading.active_count() == before
