@@ -23,7 +23,7 @@ import signal
 import sys
 import traceback
 from collections.abc import Iterator
-from typing import Any, BinaryIO, NamedTuple, Protocol
+from typing import TYPE_CHECKING, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -33,6 +33,9 @@ from dynslam_cli.geometry import relative
 from dynslam_cli.localization import observe_corners
 from dynslam_cli.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
+
+if TYPE_CHECKING:
+    from formats.base import LogReader, ReadStats, Source
 
 BATCH = 16  # scans per message from the child
 PIPE_BYTES = 1 << 20
@@ -82,38 +85,29 @@ class Measure:
         return Motion(relative(last, scan.odom) if last is not None else Pose2D(), "odometry")
 
 
-class Reader(Protocol):
-    stats: Any
-
-    def scans(self) -> Iterator[Scan]: ...
-
-
-class Source(Protocol):
-    def progress(self) -> tuple[int, int]: ...
-
-
 class FrontEnd:
     """The scans of ``reader`` with their measurements, in this process. Iterate
     :meth:`scans`; :meth:`measurement` gives the measurement of the scan last yielded,
     :meth:`progress` the bytes read so far and ``stats`` the reader's counts."""
 
-    def __init__(self, reader: Reader, source: Source, config: Config) -> None:
+    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
         self._reader = reader
         self._source = source
         self._measure = Measure(config)
+        self._scan: Scan | None = None
         self._measurement: Measurement | None = None
 
     @property
-    def stats(self) -> Any:
+    def stats(self) -> ReadStats:
         return self._reader.stats
 
     def scans(self) -> Iterator[Scan]:
         for scan in self._reader.scans():
-            self._measurement = self._measure(scan)
+            self._scan, self._measurement = scan, self._measure(scan)
             yield scan
 
     def measurement(self, scan: Scan) -> Measurement:
-        assert self._measurement is not None
+        assert scan is self._scan and self._measurement is not None, "not the last scan"
         return self._measurement
 
     def progress(self) -> tuple[int, int]:
@@ -127,9 +121,10 @@ class ForkedFrontEnd:
     """:class:`FrontEnd` in a forked child process, running ahead (same interface). Call
     :meth:`close` when done: it stops the child if it is still running."""
 
-    def __init__(self, reader: Reader, source: Source, config: Config) -> None:
-        self.stats = reader.stats
+    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
+        self.stats: ReadStats = reader.stats
         self._progress = (0, 0)
+        self._scans: list[Scan] = []
         self._measurements: list[Measurement] = []
         self._next = 0
         read_end, write_end = os.pipe()
@@ -157,6 +152,7 @@ class ForkedFrontEnd:
                                    f"({self._reap()})") from None
             if kind == "scans":
                 scans, self._measurements, self._progress = payload
+                self._scans = scans
                 for self._next, scan in enumerate(scans):
                     yield scan
             elif kind == "end":
@@ -166,6 +162,7 @@ class ForkedFrontEnd:
                 raise payload
 
     def measurement(self, scan: Scan) -> Measurement:
+        assert scan is self._scans[self._next], "not the last scan"
         return self._measurements[self._next]
 
     def progress(self) -> tuple[int, int]:
@@ -245,7 +242,7 @@ def _picklable(e: Exception) -> Exception:
     return e
 
 
-def open_front_end(reader: Reader, source: Source, config: Config, read_ahead: bool = True
+def open_front_end(reader: LogReader, source: Source, config: Config, read_ahead: bool = True
                    ) -> FrontEnd | ForkedFrontEnd:
     """A :class:`ForkedFrontEnd` if ``read_ahead`` and it can be used, else a
     :class:`FrontEnd`."""
