@@ -61,7 +61,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                 if snapshots is not None:
                     snapshots.maybe_take(scan.stamp, slam)
 
-            result = run(front.scans(), config, on_scan, front)
+            result = run(front.scans(), config, on_scan, front,
+                         online_dynamic=snapshots is not None)
         finally:
             front.close()
             source.close()

@@ -76,8 +76,9 @@ class DynamicMapper:
     """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
     and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, dynamic: bool = True) -> None:
         self.config = config
+        self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
         m, d = config.map, config.dynamic
         self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
         self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
@@ -159,7 +160,7 @@ class DynamicMapper:
     def update_dynamic_map(self, obs: Observation, free_prev: np.ndarray,
                            hit_prev: np.ndarray) -> None:
         """Eq. 13 with Table 2 as the inverse sensor model."""
-        if self._table_2 is not None:
+        if self._table_2 is not None and self._keep_dynamic:
             _apply_inverse_model(self.grids.layers["dynamic"], obs, free_prev, hit_prev,
                                  self._table_2, self._dynamic)
 
@@ -196,14 +197,17 @@ class DynamicSlam:
     measured from each scan alone (its motion and corners) comes from ``front`` (a front end
     that has measured it already) or, by default, is measured here."""
 
-    def __init__(self, config: Config, front: Measurements | None = None) -> None:
+    def __init__(self, config: Config, front: Measurements | None = None,
+                 online_dynamic: bool = True) -> None:
         self.config = config
-        self.mapper = DynamicMapper(config)
+        use_graph = config.loop.enabled and config.ekf.localization == "ekf"
+        # With the pose graph the maps are made again at the end; while running, the filter
+        # needs S alone (Table 3), and D only if someone looks (:meth:`current`).
+        self.mapper = DynamicMapper(config, dynamic=online_dynamic or not use_graph)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
         self._measure = front.measurement if front is not None else Measure(config)
         self._motion_sources: Counter[str] = Counter()
-        use_graph = config.loop.enabled and config.ekf.localization == "ekf"
         self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
         self._store = ScanStore() if use_graph else None
         self._nodes = array("i")  # per scan: its graph node ...
@@ -376,10 +380,10 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
 
 def run(scans: Iterable[Scan], config: Config,
         on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None,
-        front: Measurements | None = None) -> SlamResult:
+        front: Measurements | None = None, online_dynamic: bool = True) -> SlamResult:
     """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
-    after each scan (progress, snapshots)."""
-    slam = DynamicSlam(config, front)
+    after each scan (progress, snapshots: those need ``online_dynamic``)."""
+    slam = DynamicSlam(config, front, online_dynamic)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:
