@@ -286,7 +286,8 @@ class DynamicSlam:
         return measured
 
     def current(self) -> SlamResult:
-        """The state so far, as mapped online (for snapshots)."""
+        """The state so far, as mapped online (for snapshots: with the pose graph, D is kept
+        while running only if this object was made with ``online_dynamic``)."""
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
         return self._result(self.mapper, trajectory)
 
