@@ -64,8 +64,9 @@ class InverseModel:
         return cls(logit(high), logit(low), logit(clamp_min), logit(clamp_max))
 
     def table(self, rows: dict[tuple[int, int], str]) -> np.ndarray:
-        """The table as a 3×2 array of log-odds, indexed [S^{t-1} state, o^t state]."""
-        out = np.zeros((3, 2))
+        """The table as a 3×2 array of log-odds, indexed [S^{t-1} state, o^t state]; stored
+        by columns, so each observation's column is a contiguous array."""
+        out = np.zeros((3, 2), order="F")
         for (prev, obs), value in rows.items():
             out[prev, 1 if obs == OCCUPIED else 0] = self.high if value == HIGH else self.low
         return out

@@ -651,13 +651,27 @@ cdef long long _heap_pop(long long* heap, Py_ssize_t* size) noexcept nogil:
     return top
 
 
+cdef Py_ssize_t _keep_unmarked(Py_ssize_t* row, Py_ssize_t length, int* mark,
+                               int stamp) noexcept nogil:
+    """Keep, in order and in place, the entries of row[:length] not marked ``stamp`` yet
+    (marking them, so repeats go too); returns how many are kept."""
+    cdef Py_ssize_t p, kept = 0, w
+    for p in range(length):
+        w = row[p]
+        if mark[w] != stamp:
+            mark[w] = stamp
+            row[kept] = w
+            kept += 1
+    return kept
+
+
 def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1] ej):
     """An ordering of the n nodes of the graph with edges (ei[k], ej[k]) for a Cholesky
     factorization that fills in little: repeatedly the node of least degree (ties: the lower
     index) is eliminated, its neighbours becoming neighbours of each other (exact minimum
     degree on the elimination graph, George & Liu 1989)."""
     cdef Py_ssize_t m = ei.shape[0], k, a, b, v, u, w, p, q, step, hsize = 0, hcap
-    cdef Py_ssize_t dv, du, fill
+    cdef Py_ssize_t dv, du
     cdef long long key
     cdef int stamp = 0
     deg_arr = np.zeros(n, dtype=np.intp)
@@ -697,14 +711,7 @@ def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1]
         for a in range(n):  # drop repeated edges
             stamp += 1
             mark[a] = stamp
-            q = 0
-            for p in range(deg[a]):
-                w = adj[a][p]
-                if mark[w] != stamp:
-                    mark[w] = stamp
-                    adj[a][q] = w
-                    q += 1
-            deg[a] = q
+            deg[a] = _keep_unmarked(adj[a], deg[a], &mark[0], stamp)
             _heap_push(heap, &hsize, deg[a] * n + a)
         for step in range(n):
             while True:  # the least degree still current (stale entries are skipped)
@@ -720,13 +727,7 @@ def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1]
                 stamp += 1
                 mark[u] = stamp
                 mark[v] = stamp
-                du = 0
-                for q in range(deg[u]):
-                    w = adj[u][q]
-                    if mark[w] != stamp:
-                        mark[w] = stamp
-                        adj[u][du] = w
-                        du += 1
+                du = _keep_unmarked(adj[u], deg[u], &mark[0], stamp)
                 for q in range(dv):
                     w = adj[v][q]
                     if mark[w] != stamp:

@@ -373,9 +373,9 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
     """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
     to the model's range."""
     flat = layer.reshape(-1)
-    kernels.add_clamped(flat, obs.free, free_prev, table[:, 0].copy(), model.clamp_min,
+    kernels.add_clamped(flat, obs.free, free_prev, table[:, 0], model.clamp_min,
                         model.clamp_max)
-    kernels.add_clamped(flat, obs.hit, hit_prev, table[:, 1].copy(), model.clamp_min,
+    kernels.add_clamped(flat, obs.hit, hit_prev, table[:, 1], model.clamp_min,
                         model.clamp_max)
 
 

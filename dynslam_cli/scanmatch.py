@@ -117,7 +117,6 @@ class ScanMatcher:
         self.cfg = cfg
         self.noise = noise
         self._key: tuple[PointIndex, np.ndarray] | None = None
-        self._key_odom = Pose2D()  # wheel odometry at the key scan
         self._pose_in_key = Pose2D()  # matched pose of the last scan in the key frame
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
