@@ -28,9 +28,11 @@ samples: install
 bench: install
 	$(BIN)/python bench/run.py --runs 5
 
-# Accuracy of every built-in world, with and without the paper's components.
+# Accuracy of every built-in world, with and without the paper's components, and of the
+# Radish corrected logs under drifting odometry of our own (perfect, moderate, harsh).
 accuracy: install
 	$(BIN)/python bench/accuracy.py
+	$(BIN)/python bench/radish.py
 
 clean:
 	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -47,11 +47,11 @@ class OdometryNoise:
     """Systematic rotation scale error (fraction)."""
     sigma_m_per_sqrt_m: float = 0.01
     sigma_deg_per_sqrt_rad: float = 0.5
+    lateral_sigma_m_per_sqrt_m: float = 0.0
+    """Sideways slip, random (wheeled robots: small; 0 draws nothing)."""
 
     def scaled(self, factor: float) -> OdometryNoise:
-        return OdometryNoise(*(factor * getattr(self, f) for f in (
-            "scale_error", "heading_bias_deg_per_m", "rotation_scale_error",
-            "sigma_m_per_sqrt_m", "sigma_deg_per_sqrt_rad")))
+        return OdometryNoise(*(factor * getattr(self, f.name) for f in fields(self)))
 
 
 @dataclass
@@ -320,7 +320,7 @@ def _run(world: World, duration_s: float, rate_hz: float, seed: int, laser: Lase
         truth.hits.append(list(hits))
         yield SimStep(stamp=t, truth=pose, odom=odom, ranges=ranges, hits=hits)
         new_pose, target = _drive(world, pose, target, dt)
-        odom = compose(odom, _noisy_increment(relative(pose, new_pose), noise, rng))
+        odom = compose(odom, noisy_increment(relative(pose, new_pose), noise, rng))
         pose = new_pose
 
 
@@ -338,14 +338,19 @@ def _drive(world: World, pose: Pose2D, target: int, dt: float) -> tuple[Pose2D, 
                   wrap_angle(pose.theta + omega * dt)), target
 
 
-def _noisy_increment(inc: Pose2D, noise: OdometryNoise, rng: np.random.Generator) -> Pose2D:
+def noisy_increment(inc: Pose2D, noise: OdometryNoise, rng: np.random.Generator) -> Pose2D:
+    """A motion increment (robot frame) as a wheel odometry with ``noise`` would report it:
+    scale errors, a heading bias per metre, and random errors growing with the square root
+    of the distance driven and the angle turned."""
     dist, rot = math.hypot(inc.x, inc.y), abs(inc.theta)
     scale = 1.0 + noise.scale_error
     sx = rng.normal(0, noise.sigma_m_per_sqrt_m * math.sqrt(dist)) if dist else 0.0
     sth = rng.normal(0, math.radians(noise.sigma_deg_per_sqrt_rad) * math.sqrt(rot + dist))
     dth = (inc.theta * (1.0 + noise.rotation_scale_error)
            + math.radians(noise.heading_bias_deg_per_m) * dist + sth)
-    return Pose2D(inc.x * scale + sx, inc.y * scale, dth)
+    sy = (rng.normal(0, noise.lateral_sigma_m_per_sqrt_m * math.sqrt(dist))
+          if dist and noise.lateral_sigma_m_per_sqrt_m else 0.0)
+    return Pose2D(inc.x * scale + sx, inc.y * scale + sy, dth)
 
 
 def _box_visible(world: World, box: Box, center: tuple[float, float], pose: Pose2D,
