@@ -28,6 +28,7 @@ from dynslam_cli.errors import ConfigError
 from dynslam_cli.localization import EkfConfig
 from dynslam_cli.loopclosure import LoopConfig
 from dynslam_cli.scanmatch import MatchConfig
+from dynslam_cli.types import Scan
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,13 @@ class LaserConfig:
     fov_deg: float | None = None
     """Field of view for logs whose records carry no beam angles (old FLASER), overriding
     CARMEN's rule (degrees). The first beam is at -fov/2, beams evenly spaced."""
+
+    def limit(self, scan: Scan) -> Scan:
+        """The scan with ``max_range_m`` as its max range where set, so every consumer
+        (scan matching, corners, loop closure, the maps) sees the same no-return rule."""
+        if self.max_range_m is None or scan.max_range == self.max_range_m:
+            return scan
+        return dataclasses.replace(scan, max_range=self.max_range_m)
 
 
 @dataclass(frozen=True)

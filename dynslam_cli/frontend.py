@@ -94,6 +94,7 @@ class FrontEnd:
         self._reader = reader
         self._source = source
         self._measure = Measure(config)
+        self._laser = config.laser
         self._scan: Scan | None = None
         self._measurement: Measurement | None = None
 
@@ -102,7 +103,8 @@ class FrontEnd:
         return self._reader.stats
 
     def scans(self) -> Iterator[Scan]:
-        for scan in self._reader.scans():
+        for read in self._reader.scans():
+            scan = self._laser.limit(read)
             self._scan, self._measurement = scan, self._measure(scan)
             yield scan
 

@@ -132,9 +132,8 @@ class DynamicMapper:
     def observe(self, pose: Pose2D, scan: Scan) -> Observation:
         """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
         laser = self.config.laser
-        max_range = laser.max_range_m if laser.max_range_m is not None else scan.max_range
         return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
-                                  max_range, laser.min_range_m, laser.clear_cap_m)
+                                  scan.max_range, laser.min_range_m, laser.clear_cap_m)
 
     def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the
@@ -221,6 +220,7 @@ class DynamicSlam:
 
     def step(self, scan: Scan) -> Pose2D:
         """Process one scan; returns the robot's pose in the map frame."""
+        scan = self.config.laser.limit(scan)  # (a front end has done it already)
         pose = self.localize(scan)
         self.mapper.integrate(pose, scan)
         self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))

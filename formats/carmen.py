@@ -24,8 +24,10 @@ records around the scan's time stamp (held after the last one).
 Beam angles: ``RAWLASER``/``ROBOTLASER`` give start angle and resolution. Old ``FLASER``
 lines carry none: CARMEN's readlog rule (start −90°; 180/181 beams → 1° steps, 360/361 →
 0.5°, other n → 180°/(n−1)), unless ``PARAM laser_front_laser_fov`` / ``..._resolution``
-(degrees) or the ``--flaser-fov`` option says otherwise. Max range for FLASER: 80 m (CARMEN)
-unless a ``PARAM ..._max_range`` gives one.
+(degrees; a fov of at most 2π that the beams span as radians is radians, said once) or the
+``--flaser-fov`` option says otherwise. Max range for FLASER: 80 m (CARMEN) unless a
+``PARAM ..._max_range`` gives one; readings beyond that PARAM contradict it, and then the
+largest reading seen marks "no return" instead (said once).
 
 Bad input, decided per case:
 
@@ -80,6 +82,24 @@ def sniff(head: bytes) -> bool:
     return False
 
 
+CONTRADICTED_MAX_RANGE = 1.05  # a reading this far beyond the PARAM max range contradicts it
+NO_RETURN_SHARE = 0.99  # readings within 1% of the largest one are "no return"
+
+
+def fov_radians(value: float, beams: int, resolution_deg: float | None) -> float:
+    """A ``PARAM ..._fov`` in radians. CARMEN writes degrees, but some logs write radians
+    (csail: ``laser_front_laser_fov 3.14159`` with 361 beams at 0.5°). A value of at most 2π
+    is radians when the beams at the given resolution span it as radians (within one beam),
+    or, with no resolution given, always: a laser scan spanning under 6.3° does not exist."""
+    if value <= 2 * math.pi + 1e-6:
+        if resolution_deg is None or resolution_deg <= 0:
+            return value
+        span = math.radians(resolution_deg) * max(beams - 1, 1)
+        if abs(span - value) <= math.radians(resolution_deg):
+            return value
+    return math.radians(value)
+
+
 def carmen_beam_angles(n: int) -> tuple[float, float]:
     """(start, step) in radians for an old FLASER line of n beams, by CARMEN's readlog rule."""
     if n in (180, 181):
@@ -110,6 +130,7 @@ class CarmenReader:
         self._odometry_buffer = OdometryBuffer(self.stats)
         self._last_stamp = -math.inf
         self._line = 0
+        self._ceiling = 0.0  # largest reading where readings contradict the PARAM max range
 
     # -- the stream -----------------------------------------------------------------------
     def scans(self) -> Iterator[Scan]:
@@ -269,13 +290,33 @@ class CarmenReader:
             if p_res is not None and p_res > 0:
                 step = math.radians(p_res)
             if p_fov is not None and p_fov > 0:
-                start = -math.radians(p_fov) / 2
-                step = math.radians(p_res) if p_res else math.radians(p_fov) / max(n - 1, 1)
-        max_range = self._param_float("laser{laser}lasermaxrange", "robot{laser}lasermax",
-                                      "laser{laser}maxrange") or CARMEN_DEFAULT_MAX_RANGE
-        yield from self._emit(self._stamp(tokens), self._ranges(values[:n]),
-                              self._beam_angles(n, start, step), max_range, robot,
+                fov = fov_radians(p_fov, n, p_res)
+                if fov != math.radians(p_fov):
+                    self.stats.warn(f"PARAM laser fov {p_fov:g} read as radians (the beams "
+                                    "span it so)")
+                start = -fov / 2
+                step = math.radians(p_res) if p_res else fov / max(n - 1, 1)
+        ranges = self._ranges(values[:n])
+        yield from self._emit(self._stamp(tokens), ranges, self._beam_angles(n, start, step),
+                              self._old_laser_max_range(ranges), robot,
                               relative(robot, laser_pose))
+
+    def _old_laser_max_range(self, ranges: np.ndarray) -> float:
+        """The PARAM max range, or CARMEN's 80 m; where readings contradict the PARAM
+        (edmonton: ``robot_front_laser_max 10`` with real readings to 51 m) the largest
+        reading seen so far marks "no return" instead (within 1%), and that is said once."""
+        param = self._param_float("laser{laser}lasermaxrange", "robot{laser}lasermax",
+                                  "laser{laser}maxrange")
+        if param is None or param <= 0:
+            return CARMEN_DEFAULT_MAX_RANGE
+        with np.errstate(invalid="ignore"):
+            top = float(np.nanmax(ranges, initial=0.0, where=np.isfinite(ranges)))
+        if top > param * CONTRADICTED_MAX_RANGE and top <= CARMEN_DEFAULT_MAX_RANGE * 1.05:
+            if self._ceiling == 0.0:
+                self.stats.warn(f"readings beyond the PARAM max range {param:g} m: the "
+                                "largest reading marks no return instead", self._line)
+            self._ceiling = max(self._ceiling, top)
+        return NO_RETURN_SHARE * self._ceiling if self._ceiling else param
 
     def _raw_header(self, tokens: list[str], tail: int) -> tuple[int, int, np.ndarray]:
         """Check RAWLASER/ROBOTLASER counts: returns (n, m, header numbers)."""

@@ -61,6 +61,51 @@ def test_flaser_angles_from_param_and_override(tmp_path):
     assert s.angles[-1] - s.angles[0] == pytest.approx(math.radians(200))
 
 
+@pytest.mark.parametrize(("fov", "res", "n", "span_deg"), [
+    ("3.14159", "0.5", 361, 180.0),  # radians (csail-corrected): 361 beams at 0.5° span π
+    ("180", "0.5", 361, 180.0),  # degrees, as CARMEN writes it
+    ("3.14159", None, 181, 180.0),  # radians, no resolution: under 6.3° is no laser
+    ("6", "0.5", 13, 6.0),  # degrees: 13 beams at 0.5° span 6°, not 6 rad
+])
+def test_flaser_fov_param_in_degrees_or_radians(tmp_path, fov, res, n, span_deg):
+    text = f"PARAM laser_front_laser_fov {fov} nohost 0\n"
+    if res is not None:
+        text += f"PARAM laser_front_laser_resolution {res} nohost 0\n"
+    _, (s,), stats = read(write(tmp_path, text + flaser(n=n)))
+    assert math.degrees(s.angles[-1] - s.angles[0]) == pytest.approx(span_deg, abs=1e-3)
+    said = any("read as radians" in w for w in stats.warnings)
+    assert said == (span_deg != float(fov))
+
+
+def flaser_with(ranges: str, t: float = 1.0) -> str:
+    return f"FLASER {len(ranges.split())} {ranges} 0 0 0 0 0 0 {t} host {t}\n"
+
+
+def test_readings_beyond_param_max_range_contradict_it(tmp_path):
+    """edmonton: PARAM max 10 m, real readings to 46 m, no returns at 51.15 m."""
+    text = "PARAM robot_front_laser_max 10 nohost 0\n"
+    text += flaser_with("5 46 51.15 51.1", t=1) + flaser_with("5 6 7 8", t=2)
+    _, scans, stats = read(write(tmp_path, text))
+    for s in scans:  # 46 m is a reading; 51.1 and 51.15 are no returns
+        assert 46 < s.max_range <= 51.1
+    assert sum("beyond the PARAM max range" in w for w in stats.warnings) == 1
+    _, (s,), stats = read(write(tmp_path, "PARAM robot_front_laser_max 10 x 0\n"
+                                + flaser_with("5 9")))
+    assert s.max_range == 10.0 and not stats.warnings  # no contradiction: the PARAM
+
+
+def test_config_max_range_reaches_every_consumer(tmp_path):
+    from dynslam_cli.config import Config, LaserConfig
+    from dynslam_cli.frontend import FrontEnd
+    path = write(tmp_path, flaser_with("1 2 3 9", t=1) + flaser(n=4, t=2))
+    source, _, reader = open_log(str(path), ReaderOptions())
+    config = Config(laser=LaserConfig(max_range_m=5.0))
+    front = FrontEnd(reader, source, config)
+    scans = list(front.scans())
+    assert [s.max_range for s in scans] == [5.0, 5.0]  # what the matcher and the maps see
+    source.close()
+
+
 def test_rlaser_is_the_rear_laser(tmp_path):
     text = flaser() + flaser(t=2).replace("FLASER", "RLASER")
     _, scans, _stats = read(write(tmp_path, text), laser="rear")
