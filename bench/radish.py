@@ -118,14 +118,15 @@ def prepared(name: str, level: str, seed: int) -> Path:
     return dst
 
 
-def one(name: str, level: str, seed: int) -> dict:
+def one(name: str, level: str, seed: int, config: str | None = None) -> dict:
     log = prepared(name, level, seed)
     truth = positions(radish_logs()[name])
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "out"
         start = time.perf_counter()
         run = subprocess.run([*DYNSLAM, "process", str(log), "-o", str(out), "-q",
-                              "--no-read-ahead"], capture_output=True, text=True)
+                              "--no-read-ahead", *(["--config", config] if config else [])],
+                             capture_output=True, text=True)
         wall = time.perf_counter() - start
         if run.returncode:
             return {"log": name, "level": level, "error": run.stderr.strip()[-300:]}
@@ -144,13 +145,14 @@ def main() -> None:
     ap.add_argument("--logs", default=",".join(radish_logs()))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--config", help="a dynslam config file (TOML) for every run")
     ap.add_argument("--out", default=str(ROOT / "bench" / "radish.json"))
     args = ap.parse_args()
     if not DATA.exists():
         sys.exit(f"no data: {DATA}")
     work = [(n, lv) for n in args.logs.split(",") for lv in args.levels.split(",")]
     with ThreadPoolExecutor(args.jobs) as pool:  # each run is its own process
-        rows = list(pool.map(lambda w: one(*w, args.seed), work))
+        rows = list(pool.map(lambda w: one(*w, args.seed, args.config), work))
     print(f"{'log':20s} {'level':9s} {'odometry':>9s} {'dynslam':>9s} {'wall s':>7s}")
     for r in rows:
         if "error" in r:

@@ -1,18 +1,22 @@
-"""Scan-matched odometry: point-to-line ICP of each scan against a recent key scan.
+"""Scan-matched odometry: point-to-line ICP of each scan against a local map.
 
 The EKF's prediction (Sec. 4) needs the robot's motion since the last scan. Wheel odometry
-drifts fast (real logs: metres over a run); matching the scan against a key scan taken a
-little earlier gives a much better motion estimate, which the EKF then uses as its control
-input with a smaller noise. Corner landmarks still correct what drift is left, and close
-loops. If a match is poor (too few inliers, large residual) the wheel odometry is used.
+drifts fast (real logs: metres over a run); matching the scan against the last few key scans
+gives a much better motion estimate, which the EKF then uses as its control input with a
+smaller noise. Corner landmarks still correct what drift is left, and close loops. If a
+match is poor (too few inliers, large residual) the wheel odometry is used.
 
-Points are in the robot frame; a new key scan is taken after ``key_distance_m`` or
-``key_angle_deg`` of motion, so drift grows per key scan, not per scan.
+The local map is the points of the last ``local_map_scans`` key scans, placed by their
+matched poses in the matcher's own frame (Karto's running scan buffer, Cartographer's
+submap in miniature): each scan is matched against several earlier views of the same walls,
+so an error of one key scan is averaged out instead of handed on to the next. A new key scan
+is taken after ``key_distance_m`` or ``key_angle_deg`` of motion.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -20,7 +24,7 @@ import numpy as np
 
 from dynslam_cli import kernels
 from dynslam_cli.ekf import NoiseModel, motion_std
-from dynslam_cli.geometry import compose, relative
+from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.kernels import PointIndex
 from dynslam_cli.types import Pose2D, Scan
 
@@ -54,8 +58,14 @@ class MatchConfig:
     """... and at least this (translation) ..."""
     prior_floor_deg: float = 5.0
     """... and this (rotation): wheel odometry of real robots slips in fast turns."""
-    key_distance_m: float = 1.0
-    key_angle_deg: float = 20.0
+    key_distance_m: float = 0.5
+    key_angle_deg: float = 15.0
+    local_map_scans: int = 8
+    """Key scans in the local map each scan is matched against (1: the last key scan)."""
+    local_map_cell_m: float = 0.05
+    """The local map keeps one point per square of this side (overlapping key scans)."""
+    normal_neighbours: int = 6
+    """Points whose spread gives a local-map point's normal."""
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
@@ -66,18 +76,6 @@ def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
                               np.ascontiguousarray(scan.angles, dtype=np.float64), step,
                               laser.x, laser.y, laser.theta, 0.05,
                               min(max_range, scan.max_range))
-
-
-def _normals(pts: np.ndarray) -> np.ndarray:
-    """Unit normals from each point's neighbours in scan order."""
-    nxt = np.roll(pts, -1, axis=0)
-    prv = np.roll(pts, 1, axis=0)
-    t = nxt - prv
-    t[0], t[-1] = pts[1] - pts[0], pts[-1] - pts[-2]
-    n = np.column_stack((-t[:, 1], t[:, 0]))
-    norm = np.hypot(n[:, 0], n[:, 1])
-    norm[norm < 1e-9] = 1.0
-    return n / norm[:, None]
 
 
 def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D,
@@ -105,9 +103,34 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     return (Pose2D(x, y, th), share, rms) if ok else (guess, 0.0, math.inf)
 
 
-def reference(points: np.ndarray) -> tuple[PointIndex, np.ndarray]:
-    """A key scan's points (N×2, in scan order) indexed for ICP, and their normals."""
-    return PointIndex(points), _normals(points)
+class LocalMap:
+    """The last ``size`` key scans' points in the matcher's frame, thinned to one point per
+    ``cell`` square, indexed for ICP with their normals."""
+
+    def __init__(self, size: int, cell: float, neighbours: int) -> None:
+        self._keys: deque[np.ndarray] = deque(maxlen=size)
+        self._cell = cell
+        self._neighbours = neighbours
+        self.reference: tuple[PointIndex, np.ndarray] | None = None
+
+    def add(self, pose: Pose2D, points: np.ndarray) -> None:
+        """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
+        self._keys.append(transform_points(pose, points))
+        pts = np.concatenate(self._keys)
+        if len(pts) < 20:
+            self.reference = None
+            return
+        keep = thin(pts, self._cell)
+        index = PointIndex(pts[keep])
+        self.reference = (index, index.normals(self._neighbours))
+
+
+def thin(points: np.ndarray, cell: float) -> np.ndarray:
+    """Indices of the first point in each ``cell`` square (in order of first appearance)."""
+    q = np.floor(points / cell).astype(np.int64)
+    key = (q[:, 0] << 32) ^ (q[:, 1] & 0xFFFFFFFF)
+    _, first = np.unique(key, return_index=True)
+    return np.sort(first)
 
 
 class ScanMatcher:
@@ -116,56 +139,68 @@ class ScanMatcher:
     def __init__(self, cfg: MatchConfig, noise: NoiseModel) -> None:
         self.cfg = cfg
         self.noise = noise
-        self._key: tuple[PointIndex, np.ndarray] | None = None
-        self._pose_in_key = Pose2D()  # matched pose of the last scan in the key frame
+        self._map = LocalMap(cfg.local_map_scans, cfg.local_map_cell_m, cfg.normal_neighbours)
+        self._pose = Pose2D()  # matched pose of the last scan in the matcher's frame
+        self._key_pose: Pose2D | None = None  # ... and of the last key scan
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str]:
         """Motion since the previous scan, in the previous robot frame, and where it came
         from: "matched", "recovered" (matched after retrying other guesses), "fallback" (no
-        good match: the wheel odometry's) or "odometry" (no key scan to match against)."""
+        good match: the wheel odometry's) or "odometry" (no local map to match against)."""
         cfg = self.cfg
         wheel = relative(self._last_odom, scan.odom)
         self._last_odom = scan.odom
+        guess = compose(self._pose, wheel)
+        reference = self._map.reference
+        if reference is None:
+            pose, source = guess, "odometry"
+        else:
+            pose, source = self._match(scan, reference, guess, wheel)
+        inc = relative(self._pose, pose)
+        self._pose = pose
+        self._last_increment = inc
+        key = self._key_pose
+        if key is None or self._moved_far(relative(key, pose)):
+            self._map.add(pose, scan_points(scan, cfg.max_range_m))
+            self._key_pose = pose
+        return inc, source
+
+    def _moved_far(self, d: Pose2D) -> bool:
+        return (math.hypot(d.x, d.y) > self.cfg.key_distance_m
+                or abs(d.theta) > math.radians(self.cfg.key_angle_deg))
+
+    def _match(self, scan: Scan, reference: tuple[PointIndex, np.ndarray], guess: Pose2D,
+               wheel: Pose2D) -> tuple[Pose2D, str]:
+        cfg = self.cfg
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
-        if self._key is None:
-            self._set_key(scan, Pose2D())
-            return wheel, "odometry"
-        ref, normals = self._key
-        guess = compose(self._pose_in_key, wheel)
         if scan.has_odometry:
             st, sr = motion_std(wheel.x, wheel.y, wheel.theta, self.noise)
             st = max(st * cfg.prior_scale, cfg.prior_floor_m)
             sigma = (st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg)))
         else:
             sigma = NO_ODOMETRY_SIGMA
+        ref, normals = reference
         pose, share, rms = icp(ref, normals, pts, guess, cfg, sigma)
-        source = "matched" if self._good(share, rms, pts) else "fallback"
-        if source == "fallback" and scan.has_odometry:  # odometry glitches (a doubled turn)
-            pose, share, rms = self._recover(pts, guess, sigma)
-            source = "recovered" if self._good(share, rms, pts) else "fallback"
-        if source == "fallback":
-            pose = guess
-        inc = relative(self._pose_in_key, pose)
-        self._pose_in_key = pose
-        self._last_increment = inc
-        if (math.hypot(pose.x, pose.y) > cfg.key_distance_m
-                or abs(pose.theta) > math.radians(cfg.key_angle_deg)):
-            self._set_key(scan, Pose2D())
-        return inc, source
+        if self._good(share, rms, pts):
+            return pose, "matched"
+        if scan.has_odometry:  # odometry glitches (a doubled turn)
+            pose, share, rms = self._recover(reference, pts, guess, sigma)
+            if self._good(share, rms, pts):
+                return pose, "recovered"
+        return guess, "fallback"
 
     def _good(self, share: float, rms: float, pts: np.ndarray) -> bool:
         return share >= self.cfg.min_inliers and rms <= self.cfg.max_rms_m and len(pts) >= 20
 
-    def _recover(self, pts: np.ndarray, guess: Pose2D, sigma: Sequence[float]
-                 ) -> tuple[Pose2D, float, float]:
+    def _recover(self, reference: tuple[PointIndex, np.ndarray], pts: np.ndarray,
+                 guess: Pose2D, sigma: Sequence[float]) -> tuple[Pose2D, float, float]:
         """Match again from the constant-velocity guess and from the odometry's guess turned
         by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best match
         wins."""
-        assert self._key is not None
-        ref, normals = self._key
-        guesses = [compose(self._pose_in_key, self._last_increment)]
+        ref, normals = reference
+        guesses = [compose(self._pose, self._last_increment)]
         guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
                     for d in RECOVERY_TURNS_DEG]
         best = (guess, 0.0, math.inf)
@@ -174,11 +209,3 @@ class ScanMatcher:
             if self._good(share, rms, pts) and (share, -rms) > (best[1], -best[2]):
                 best = (pose, share, rms)
         return best
-
-    def _set_key(self, scan: Scan, pose: Pose2D) -> None:
-        ref = scan_points(scan, self.cfg.max_range_m)
-        if len(ref) < 20:
-            self._key = None
-            return
-        self._key = reference(ref)
-        self._pose_in_key = pose
