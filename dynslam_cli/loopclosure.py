@@ -13,7 +13,10 @@ closure), the scans around the new node are matched against those around the old
 2. **ICP refinement** (point-to-line); the edge's information comes from the search's
    ambiguity (the spread of the poses that could score as well), so a match along a
    featureless corridor constrains only the directions it can see;
-3. an accepted match becomes an edge with a Cauchy kernel (a wrong one is pulled on only
+3. **consistency**: a match the graph already agrees with is added; one that would move
+   the graph waits for a second match close by that tells the same story (the loop of the
+   two matches and the path between them closes), so a single false match never enters;
+4. an accepted match becomes an edge with a Cauchy kernel (a wrong one is pulled on only
    softly), and the graph is optimized.
 """
 
@@ -22,7 +25,7 @@ from __future__ import annotations
 import bisect
 import functools
 import math
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,6 +85,17 @@ class LoopConfig:
     so revisiting a well-mapped place does not re-solve the whole graph every metre."""
     edge_sigma_m: float = 0.05
     """Added (as a standard deviation) to a loop edge's translation uncertainty."""
+    consistent_chi2: float = 11.34
+    """A closure within this χ² of the graph's estimate (99%, 3 dof) is added at once; one
+    that would move the graph waits for a second closure that agrees with it ..."""
+    pair_window_m: float = 10.0
+    """... made within this much driving after it (the last few wait) ..."""
+    pair_tolerance_m: float = 0.15
+    pair_tolerance_deg: float = 2.0
+    """... closing the loop of the two closures to this (plus ``drift_per_m`` and
+    ``pair_drift_deg_per_m`` times the path between their ends)."""
+    pair_drift_deg_per_m: float = 0.2
+    pending_closures: int = 4
 
 
 FIELD_RES_M = 0.05
@@ -236,6 +250,18 @@ def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
     return np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV
 
 
+@dataclass(frozen=True)
+class Closure:
+    """A loop-closure match: node ``new`` seen from node ``old`` at ``z``, its information,
+    and its χ² against the graph when it was made."""
+
+    old: int
+    new: int
+    z: Pose2D
+    info: np.ndarray
+    chi2: float
+
+
 class LoopCloser:
     """Keeps the graph, the key scans and the closures."""
 
@@ -252,6 +278,7 @@ class LoopCloser:
         self._since_closure_m = 0.0
         self._last_attempt_m = -math.inf
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
+        self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
 
     def wants_node(self, front_pose: Pose2D) -> bool:
         if not self.front:
@@ -329,15 +356,57 @@ class LoopCloser:
         if share < cfg.min_inliers or rms > cfg.max_rms_m:
             return False
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
-        z = np.array([pose.x, pose.y, pose.theta])
-        self.graph.add_edge(i, k, z, info, robust=True)
-        self.closures += 1
+        closure = Closure(i, k, pose, info, self._chi2(i, k, pose, info))
+        accepted = self._accept(closure)
+        for c in accepted:
+            self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
+                                robust=True)
+        self.closures += len(accepted)
+        if not accepted:
+            return False
         self._since_closure_m = 0.0
-        err, _, _ = edge_errors(self.graph.poses, np.array([i]), np.array([k]), z[None, :])
-        if float(err[0] @ info @ err[0]) <= cfg.agree_chi2:
+        if all(c.chi2 <= cfg.agree_chi2 for c in accepted):
             return False  # the graph already agrees: optimize later (finish() always does)
         self.optimize()
         return True
+
+    def _chi2(self, i: int, k: int, z: Pose2D, info: np.ndarray) -> float:
+        """How far the graph's estimate of node k seen from node i is from ``z`` (χ²)."""
+        err, _, _ = edge_errors(self.graph.poses, np.array([i]), np.array([k]),
+                                np.array([[z.x, z.y, z.theta]]))
+        return float(err[0] @ info @ err[0])
+
+    def _accept(self, closure: Closure) -> list[Closure]:
+        """The closures to add to the graph now. One the graph already agrees with (within
+        ``consistent_chi2``) is added at once; one that would move the graph waits until a
+        second closure, made close by along the path, tells the same story: the loop of
+        the two closures and the two stretches of path between their ends must close
+        (:meth:`_consistent`). A false match (a similar-looking place elsewhere) rarely
+        finds a partner that agrees with it; a true one finds one a metre later."""
+        if closure.chi2 <= self.cfg.consistent_chi2:
+            return [closure]
+        for other in reversed(self._pending):
+            if self._consistent(other, closure):
+                self._pending.remove(other)
+                return [other, closure]
+        self._pending.append(closure)
+        return []
+
+    def _consistent(self, a: Closure, b: Closure) -> bool:
+        """Whether two closures agree: from a's old node, a's match then the path from a's
+        new node to b's new node must reach the same pose as the path between the old
+        nodes then b's match, within what the two stretches of path may have drifted."""
+        cfg = self.cfg
+        if self.path[b.new] - self.path[a.new] > cfg.pair_window_m:
+            return False
+        via_new = compose(a.z, relative(self.pose(a.new), self.pose(b.new)))
+        via_old = compose(relative(self.pose(a.old), self.pose(b.old)), b.z)
+        gap = relative(via_new, via_old)
+        driven = (self.path[b.new] - self.path[a.new]
+                  + abs(self.path[b.old] - self.path[a.old]))
+        return (math.hypot(gap.x, gap.y) <= cfg.pair_tolerance_m + cfg.drift_per_m * driven
+                and abs(gap.theta) <= math.radians(cfg.pair_tolerance_deg
+                                                   + cfg.pair_drift_deg_per_m * driven))
 
     def optimize(self, iterations: int = ONLINE_ITERATIONS) -> None:
         """Gauss-Newton steps on the graph: a few while the log runs (the next closure goes
