@@ -137,13 +137,11 @@ class Ekf:
         j = ROBOT + LM * i
         return self.x[j:j + LM]
 
-    def predict(self, u: np.ndarray, noise_scale: float = 1.0) -> None:
-        """Motion update with the odometry increment u (robot frame); ``noise_scale``
-        multiplies the standard deviations of the motion noise."""
+    def predict(self, u: np.ndarray, q: np.ndarray) -> None:
+        """Motion update with the increment u (robot frame) and its covariance q."""
         f_x, f_u = motion_jacobians(self.x[:3], u)
         self.x[:3] = motion(self.x[:3], u)
         cov = self.cov
-        q = motion_noise(u, self.noise) * noise_scale ** 2
         cov[:3, :3] = f_x @ cov[:3, :3] @ f_x.T + f_u @ q @ f_u.T
         cov[:3, 3:] = f_x @ cov[:3, 3:]
         cov[3:, :3] = cov[:3, 3:].T

@@ -45,10 +45,13 @@ class Motion(NamedTuple):
     """Motion since the previous scan, in the previous robot frame, and where it came from:
     ``matched`` (a good scan match), ``recovered`` (a good match after retrying other
     guesses), ``fallback`` (no good match: wheel odometry), or ``odometry`` (no match tried:
-    the first scan, a sparse key scan, or scan matching switched off)."""
+    the first scan, a sparse local map, or scan matching switched off); with the covariance
+    of a matched increment (its information from the match, fused with the odometry's), or
+    None (the odometry's noise model applies)."""
 
     increment: Pose2D
     source: str
+    cov: np.ndarray | None = None
 
     @property
     def matched(self) -> bool:
@@ -79,8 +82,7 @@ class Measure:
 
     def motion(self, scan: Scan) -> Motion:
         if self._matcher is not None:
-            increment, source = self._matcher.increment(scan)
-            return Motion(increment, source)
+            return Motion(*self._matcher.increment(scan))
         last, self._last_odom = self._last_odom, scan.odom
         return Motion(relative(last, scan.odom) if last is not None else Pose2D(), "odometry")
 

@@ -10,7 +10,8 @@ class PointIndex:
 
 def icp(index: PointIndex, normals: np.ndarray, pts: np.ndarray, gx: float, gy: float,
         gth: float, iterations: int, gate_max: float, gate_min: float, wx: float, wy: float,
-        wth: float, sigma: float) -> tuple[float, float, float, float, float, bool]: ...
+        wth: float, sigma: float
+        ) -> tuple[float, float, float, float, float, bool, np.ndarray]: ...
 def split_runs(p: np.ndarray, lo: int, hi: int, tol: float) -> list[tuple[int, int]]: ...
 def detect_corners(ranges: np.ndarray, angles: np.ndarray, limit: float, jump_m: float,
                    jump_ratio: float, tol: float, min_points: int, min_length: float,

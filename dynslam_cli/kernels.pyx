@@ -183,21 +183,26 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
         double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
         double wx, double wy, double wth, double sigma):
-    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, ok)."""
-    cdef double out[5]
+    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, ok, h): h is
+    the Huber-weighted Σ J Jᵀ of the pairs of the last iteration (3×3, the prior left out)."""
+    cdef double out[11]
     cdef bint ok
     with nogil:
         ok = _icp(index, normals, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
                   wth, sigma, out)
+    h = np.zeros((3, 3))
     if not ok:
-        return gx, gy, gth, 0.0, INFINITY, False
-    return out[0], out[1], out[2], out[3], out[4], True
+        return gx, gy, gth, 0.0, INFINITY, False, h
+    h[0, 0], h[0, 1], h[0, 2] = out[5], out[6], out[7]
+    h[1, 1], h[1, 2], h[2, 2] = out[8], out[9], out[10]
+    h[1, 0], h[2, 0], h[2, 1] = out[6], out[7], out[9]
+    return out[0], out[1], out[2], out[3], out[4], True, h
 
 
 cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
                double gx, double gy, double gth, int iterations, double gate_max,
                double gate_min, double wx, double wy, double wth, double sigma,
-               double out[5]) noexcept nogil:
+               double out[11]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
     cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
     cdef double share = 0.0, rms = INFINITY, sq
@@ -240,6 +245,12 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
         share = used / <double>n if n else 0.0
         if used < 10:
             return False
+        out[5] = a[0][0]
+        out[6] = a[0][1]
+        out[7] = a[0][2]
+        out[8] = a[1][1]
+        out[9] = a[1][2]
+        out[10] = a[2][2]
         a[0][0] += wx + 1e-9
         a[1][1] += wy + 1e-9
         a[2][2] += wth + 1e-9

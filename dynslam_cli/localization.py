@@ -19,7 +19,7 @@ import numpy as np
 
 from dynslam_cli.corners import Corner, CornerConfig, detect_corners
 from dynslam_cli.dynamic import TABLE_3
-from dynslam_cli.ekf import Ekf, NoiseModel
+from dynslam_cli.ekf import Ekf, NoiseModel, motion_noise
 from dynslam_cli.geometry import compose
 from dynslam_cli.types import Pose2D, Scan
 
@@ -42,8 +42,6 @@ class EkfConfig:
     """... within this distance of each other ..."""
     candidate_expiry_scans: int = 15
     """... each within this many scans of the previous one."""
-    matched_noise_scale: float = 0.3
-    """Motion noise of a scan-matched increment, relative to wheel odometry's."""
     max_landmarks: int = 300
     active_window_scans: int = 150
     """A landmark not seen for this many scans leaves the filter ..."""
@@ -115,13 +113,17 @@ class CornerSlam:
         x = self.ekf.x
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
-    def predict(self, increment: Pose2D, matched: bool, has_odometry: bool = True) -> None:
-        """EKF prediction from the motion increment (robot frame); a scan-matched increment
-        is trusted more than wheel odometry (``matched_noise_scale``); without odometry an
-        unmatched scan gets the wide stationary prior."""
-        scale = (self.config.matched_noise_scale if matched
-                 else 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE)
-        self.ekf.predict(np.array([increment.x, increment.y, increment.theta]), scale)
+    def predict(self, increment: Pose2D, cov: np.ndarray | None, has_odometry: bool = True
+                ) -> None:
+        """EKF prediction from the motion increment (robot frame) with its covariance: a
+        scan-matched increment's own (tight where the scan sees, the odometry's where it
+        does not), else the odometry's noise model (without odometry: the wide stationary
+        prior)."""
+        u = np.array([increment.x, increment.y, increment.theta])
+        if cov is None:
+            scale = 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE
+            cov = motion_noise(u, self.config.noise) * scale ** 2
+        self.ekf.predict(u, cov)
 
     def associate(self, observations: list[tuple[np.ndarray, bool]]
                   ) -> tuple[list[tuple[int, np.ndarray]], set[int]]:

@@ -351,13 +351,14 @@ class LoopCloser:
         if (match.score < cfg.min_score
                 or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
             return False
-        pose, share, rms = icp(field.index, field.normals, query, match.pose,
-                               self.match, np.sqrt(np.diag(match.cov)))
-        if share < cfg.min_inliers or rms > cfg.max_rms_m:
+        refined = icp(field.index, field.normals, query, match.pose, self.match,
+                      np.sqrt(np.diag(match.cov)))
+        if refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m:
             return False
+        pose = refined.pose
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
         closure = Closure(i, k, pose, info, self._chi2(i, k, pose, info))
-        accepted = self._accept(closure)
+        accepted = self.accept(closure)
         for c in accepted:
             self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
                                 robust=True)
@@ -376,7 +377,7 @@ class LoopCloser:
                                 np.array([[z.x, z.y, z.theta]]))
         return float(err[0] @ info @ err[0])
 
-    def _accept(self, closure: Closure) -> list[Closure]:
+    def accept(self, closure: Closure) -> list[Closure]:
         """The closures to add to the graph now. One the graph already agrees with (within
         ``consistent_chi2``) is added at once; one that would move the graph waits until a
         second closure, made close by along the path, tells the same story: the loop of

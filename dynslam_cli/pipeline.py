@@ -246,7 +246,7 @@ class DynamicSlam:
             return scan.odom
         slam = self._slam
         slam.scan_index = self._count
-        slam.predict(motion.increment, motion.matched, scan.has_odometry)
+        slam.predict(motion.increment, motion.cov, scan.has_odometry)
         pairs, not_new = slam.associate(observations)
         seen = [i for i, _ in pairs]  # only these can correct the pose: classify them
         if seen:

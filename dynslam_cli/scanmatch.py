@@ -19,6 +19,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -66,6 +67,10 @@ class MatchConfig:
     """The local map keeps one point per square of this side (overlapping key scans)."""
     normal_neighbours: int = 6
     """Points whose spread gives a local-map point's normal."""
+    effective_pairs: float = 100.0
+    """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
+    against shares its key scans' errors): for the match's information they count as this
+    many independent pairs."""
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
@@ -78,12 +83,20 @@ def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
                               min(max_range, scan.max_range))
 
 
+class IcpResult(NamedTuple):
+    """A match: the pose, the share of points paired, the RMS of their residuals (m), and the
+    information (3×3 over x, y, θ in the reference frame) the pairs alone give the pose."""
+
+    pose: Pose2D
+    share: float
+    rms: float
+    information: np.ndarray
+
+
 def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D,
-        cfg: MatchConfig, prior_sigma: Sequence[float] | None = None
-        ) -> tuple[Pose2D, float, float]:
+        cfg: MatchConfig, prior_sigma: Sequence[float] | None = None) -> IcpResult:
     """Point-to-line ICP: the pose of ``pts``' frame in the frame of the reference points
-    (indexed by ``ref``, with their normals), starting at ``guess``; returns (pose, share of
-    inliers, RMS of inlier residuals).
+    (indexed by ``ref``, with their normals), starting at ``guess``.
 
     Each of ``cfg.iterations`` Gauss-Newton steps pairs every point with the nearest
     reference point within a gate that shrinks from ``max_correspondence_m`` to
@@ -91,26 +104,47 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     points' tangent lines. ``prior_sigma`` (x, y, θ standard deviations of the guess) adds
     the guess as a prior, so directions the scene does not constrain (along a corridor, in
     open space) stay at the odometry's value instead of sliding. Fewer than 10 pairs: the
-    guess, share 0 and RMS ∞."""
+    guess, share 0, RMS ∞ and no information.
+
+    The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M) counted as
+    ``cfg.effective_pairs`` independent pairs: a direction no tangent line constrains (along a
+    corridor's walls) has none."""
     prior = [0.0, 0.0, 0.0]
     if prior_sigma is not None:  # information of the guess, in residual units
         ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
         prior = [r * r for r in ratios]
-    x, y, th, share, rms, ok = kernels.icp(
+    x, y, th, share, rms, ok, h = kernels.icp(
         ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
         RESIDUAL_SIGMA_M)
-    return (Pose2D(x, y, th), share, rms) if ok else (guess, 0.0, math.inf)
+    if not ok:
+        return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
+    used = max(share * len(pts), 1.0)
+    return IcpResult(Pose2D(x, y, th), share, rms,
+                     h * (cfg.effective_pairs / used) / RESIDUAL_SIGMA_M ** 2)
+
+
+def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> np.ndarray:
+    """Covariance of a match fused with its prior: (Ω_match + diag(σ_prior)⁻²)⁻¹."""
+    return np.linalg.inv(information + np.diag([1.0 / max(s, 1e-6) ** 2 for s in prior_sigma]))
+
+
+def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
+    """A pose covariance (matcher frame) as the covariance of the increment from
+    ``previous``, in the previous robot frame (its rotation undone)."""
+    c, s = math.cos(previous.theta), math.sin(previous.theta)
+    j = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return j @ cov @ j.T
 
 
 class LocalMap:
-    """The last ``size`` key scans' points in the matcher's frame, thinned to one point per
-    ``cell`` square, indexed for ICP with their normals."""
+    """The last ``local_map_scans`` key scans' points in the matcher's frame, thinned to one
+    point per ``local_map_cell_m`` square, indexed for ICP with their normals (the spread
+    of each point's ``normal_neighbours`` nearest)."""
 
-    def __init__(self, size: int, cell: float, neighbours: int) -> None:
-        self._keys: deque[np.ndarray] = deque(maxlen=size)
-        self._cell = cell
-        self._neighbours = neighbours
+    def __init__(self, cfg: MatchConfig) -> None:
+        self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
+        self._cfg = cfg
         self.reference: tuple[PointIndex, np.ndarray] | None = None
 
     def add(self, pose: Pose2D, points: np.ndarray) -> None:
@@ -120,9 +154,8 @@ class LocalMap:
         if len(pts) < 20:
             self.reference = None
             return
-        keep = thin(pts, self._cell)
-        index = PointIndex(pts[keep])
-        self.reference = (index, index.normals(self._neighbours))
+        index = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)])
+        self.reference = (index, index.normals(self._cfg.normal_neighbours))
 
 
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
@@ -139,73 +172,81 @@ class ScanMatcher:
     def __init__(self, cfg: MatchConfig, noise: NoiseModel) -> None:
         self.cfg = cfg
         self.noise = noise
-        self._map = LocalMap(cfg.local_map_scans, cfg.local_map_cell_m, cfg.normal_neighbours)
+        self._map = LocalMap(cfg)
         self._pose = Pose2D()  # matched pose of the last scan in the matcher's frame
         self._key_pose: Pose2D | None = None  # ... and of the last key scan
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
 
-    def increment(self, scan: Scan) -> tuple[Pose2D, str]:
-        """Motion since the previous scan, in the previous robot frame, and where it came
-        from: "matched", "recovered" (matched after retrying other guesses), "fallback" (no
-        good match: the wheel odometry's) or "odometry" (no local map to match against)."""
+    def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
+        """Motion since the previous scan, in the previous robot frame, where it came from,
+        and its covariance where the scan was matched (else None: the odometry's noise model
+        applies). Sources: "matched", "recovered" (matched after retrying other guesses),
+        "fallback" (no good match: the wheel odometry's) or "odometry" (no local map to
+        match against)."""
         cfg = self.cfg
         wheel = relative(self._last_odom, scan.odom)
         self._last_odom = scan.odom
         guess = compose(self._pose, wheel)
         reference = self._map.reference
+        cov = None
         if reference is None:
             pose, source = guess, "odometry"
         else:
-            pose, source = self._match(scan, reference, guess, wheel)
+            pose, source, cov = self._match(scan, reference, guess, wheel)
         inc = relative(self._pose, pose)
+        if cov is not None:
+            cov = increment_covariance(cov, self._pose)
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
         if key is None or self._moved_far(relative(key, pose)):
             self._map.add(pose, scan_points(scan, cfg.max_range_m))
             self._key_pose = pose
-        return inc, source
+        return inc, source, cov
 
     def _moved_far(self, d: Pose2D) -> bool:
         return (math.hypot(d.x, d.y) > self.cfg.key_distance_m
                 or abs(d.theta) > math.radians(self.cfg.key_angle_deg))
 
-    def _match(self, scan: Scan, reference: tuple[PointIndex, np.ndarray], guess: Pose2D,
-               wheel: Pose2D) -> tuple[Pose2D, str]:
+    def _prior_sigma(self, scan: Scan, wheel: Pose2D) -> tuple[float, float, float]:
+        """Standard deviations (x, y, θ) of the odometry's guess."""
         cfg = self.cfg
-        pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
-        if scan.has_odometry:
-            st, sr = motion_std(wheel.x, wheel.y, wheel.theta, self.noise)
-            st = max(st * cfg.prior_scale, cfg.prior_floor_m)
-            sigma = (st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg)))
-        else:
-            sigma = NO_ODOMETRY_SIGMA
-        ref, normals = reference
-        pose, share, rms = icp(ref, normals, pts, guess, cfg, sigma)
-        if self._good(share, rms, pts):
-            return pose, "matched"
-        if scan.has_odometry:  # odometry glitches (a doubled turn)
-            pose, share, rms = self._recover(reference, pts, guess, sigma)
-            if self._good(share, rms, pts):
-                return pose, "recovered"
-        return guess, "fallback"
+        if not scan.has_odometry:
+            return NO_ODOMETRY_SIGMA
+        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, self.noise)
+        st = max(st * cfg.prior_scale, cfg.prior_floor_m)
+        return st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg))
 
-    def _good(self, share: float, rms: float, pts: np.ndarray) -> bool:
-        return share >= self.cfg.min_inliers and rms <= self.cfg.max_rms_m and len(pts) >= 20
+    def _match(self, scan: Scan, reference: tuple[PointIndex, np.ndarray], guess: Pose2D,
+               wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
+        """The matched pose (matcher frame), its source and its covariance."""
+        pts = scan_points(scan, self.cfg.max_range_m, self.cfg.subsample)
+        sigma = self._prior_sigma(scan, wheel)
+        ref, normals = reference
+        match, source = icp(ref, normals, pts, guess, self.cfg, sigma), "matched"
+        if not self._good(match, pts) and scan.has_odometry:  # odometry glitches
+            match, source = self._recover(reference, pts, guess, sigma), "recovered"
+        if not self._good(match, pts):
+            return guess, "fallback", None
+        return match.pose, source, fused_covariance(match.information, sigma)
+
+    def _good(self, match: IcpResult, pts: np.ndarray) -> bool:
+        return (match.share >= self.cfg.min_inliers and match.rms <= self.cfg.max_rms_m
+                and len(pts) >= 20)
 
     def _recover(self, reference: tuple[PointIndex, np.ndarray], pts: np.ndarray,
-                 guess: Pose2D, sigma: Sequence[float]) -> tuple[Pose2D, float, float]:
+                 guess: Pose2D, sigma: Sequence[float]) -> IcpResult:
         """Match again from the constant-velocity guess and from the odometry's guess turned
-        by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best match
-        wins."""
+        by each of RECOVERY_TURNS_DEG (a doubled turn), each with the same prior around
+        itself; the best good match wins."""
         ref, normals = reference
         guesses = [compose(self._pose, self._last_increment)]
         guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
                     for d in RECOVERY_TURNS_DEG]
-        best = (guess, 0.0, math.inf)
+        best = IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
         for g in guesses:
-            pose, share, rms = icp(ref, normals, pts, g, self.cfg, sigma)
-            if self._good(share, rms, pts) and (share, -rms) > (best[1], -best[2]):
-                best = (pose, share, rms)
+            match = icp(ref, normals, pts, g, self.cfg, sigma)
+            if self._good(match, pts) and (match.share, -match.rms) > (best.share, -best.rms):
+                best = match
         return best

@@ -16,6 +16,7 @@ from dynslam_cli.ekf import (
     inverse_observe_jacobians,
     motion,
     motion_jacobians,
+    motion_noise,
     observe,
     observe_jacobians,
 )
@@ -65,7 +66,8 @@ def test_update_pulls_pose_and_keeps_covariance_symmetric_positive():
     ekf = Ekf(np.zeros(3), NoiseModel())
     i = ekf.add_landmark(np.array([3.0, 0.0]))
     for _ in range(20):
-        ekf.predict(np.array([0.1, 0.0, 0.0]), 5.0)  # poor odometry
+        u = np.array([0.1, 0.0, 0.0])
+        ekf.predict(u, motion_noise(u, NoiseModel()) * 25.0)  # poor odometry
     # odometry says x = 2.0; the landmark at 3 m is seen at 0.8 m: the robot is at 2.2
     for _ in range(5):
         ekf.update(i, np.array([0.8, 0.0]))
@@ -109,7 +111,7 @@ def test_table_3(state, cls):
     slam.classify([0], np.array([state]))
     assert slam.tracks[0].cls == cls
     before = slam.ekf.x.copy()
-    slam.ekf.predict(np.array([0.0, 0.0, 0.0]), 10.0)
+    slam.ekf.predict(np.zeros(3), motion_noise(np.zeros(3), NoiseModel()) * 100.0)
     slam.correct([(0, np.array([1.9, 0.0]))])
     moved = not np.allclose(slam.ekf.x[:3], before[:3])
     assert moved == (cls == "static")  # only static landmarks correct the pose

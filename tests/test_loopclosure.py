@@ -143,6 +143,62 @@ def test_matcher_recovers_from_a_doubled_turn():
     matcher.increment(scan_at(Pose2D(), Pose2D()))
     true = Pose2D(0.05, 0.0, math.radians(-22))
     reported = Pose2D(0.05, 0.0, math.radians(-46))
-    inc, source = matcher.increment(scan_at(true, reported, 0.2))
+    inc, source, _ = matcher.increment(scan_at(true, reported, 0.2))
     assert source == "recovered"
     assert abs(inc.theta - true.theta) < math.radians(0.5)
+
+
+def corridor_points(length: float = 40.0) -> np.ndarray:
+    corridor = np.array([[-length / 2, -1, length / 2, -1], [-length / 2, 1, length / 2, 1]])
+    r, _ = ray_cast(Pose2D(), ANGLES, corridor, np.zeros(2, int), np.zeros((0, 3)),
+                    np.zeros(0, int), 20.0)
+    return scan_points(Scan(0.0, r, ANGLES, 20.0, Pose2D()), 20.0)
+
+
+def test_match_information_in_a_corridor_is_degenerate_along_it():
+    """The walls pin the pose across the corridor and in heading, not along it: there the
+    fused covariance is the odometry prior's."""
+    from dynslam_cli.kernels import PointIndex
+    from dynslam_cli.scanmatch import fused_covariance, icp
+
+    pts = corridor_points()
+    ref = PointIndex(pts)
+    match = icp(ref, ref.normals(6), pts, Pose2D(0.3, 0.05, 0.01), MatchConfig(),
+                (0.2, 0.2, 0.1))
+    info = match.information
+    assert info[0, 0] < 0.01 * info[1, 1]  # along: next to nothing; across: a lot
+    assert info[2, 2] > 0
+    cov = fused_covariance(info, (0.2, 0.2, 0.1))
+    assert math.sqrt(cov[0, 0]) > 10 * math.sqrt(cov[1, 1])
+    assert math.sqrt(cov[1, 1]) < 0.01
+    assert abs(match.pose.y) < 0.01  # pinned across
+
+    room = PointIndex(robot_points(Pose2D()))  # a room pins every direction
+    m = icp(room, room.normals(6), robot_points(Pose2D(0.1, 0.0, 0.0)), Pose2D(),
+            MatchConfig(), (0.2, 0.2, 0.1))
+    assert np.linalg.eigvalsh(m.information[:2, :2]).min() > 1e3
+
+
+def test_a_false_loop_closure_waits_and_never_enters_alone():
+    """A closure that would bend the graph is held; it enters only with a second closure
+    that tells the same story. A lone false one never does, a pair of true ones do."""
+    from dynslam_cli.loopclosure import Closure
+
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m
+        closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
+    info = np.diag([400.0, 400.0, 3000.0])
+
+    def closure(old: int, new: int, shift: float) -> Closure:
+        z = relative(closer.pose(old), closer.pose(new))
+        z = Pose2D(z.x + shift, z.y, z.theta)
+        return Closure(old, new, z, info, closer._chi2(old, new, z, info))
+
+    false = closure(2, 30, 1.5)  # "node 30 is 1.5 m farther from node 2 than the graph says"
+    assert closer.accept(false) == []
+    assert closer.accept(closure(3, 32, -0.8)) == []  # another, disagreeing with the first
+    agreeing = closure(4, 34, 0.0)  # the graph already agrees: in at once
+    assert closer.accept(agreeing) == [agreeing]
+    first, second = closure(5, 36, 0.6), closure(6, 38, 0.6)  # true drift, seen twice
+    assert closer.accept(first) == []
+    assert closer.accept(second) == [first, second]
