@@ -338,7 +338,7 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
 
 
 @main.command()
-@click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd"]))
+@click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd", "office"]))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Folder to write <world>.log and truth.json into.")
 @click.option("--duration", type=click.FloatRange(min=1), default=600, show_default=True,

@@ -35,6 +35,7 @@ RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
 NO_ODOMETRY_SIGMA = (0.3, 0.3, math.radians(15.0))
 # When the match from the odometry's guess fails, these turns of that guess are tried too.
 RECOVERY_TURNS_DEG = (-30.0, -20.0, -10.0, 10.0, 20.0, 30.0)
+MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations from its start
 
 
 @dataclass(frozen=True)
@@ -224,29 +225,45 @@ class ScanMatcher:
         pts = scan_points(scan, self.cfg.max_range_m, self.cfg.subsample)
         sigma = self._prior_sigma(scan, wheel)
         ref, normals = reference
-        match, source = icp(ref, normals, pts, guess, self.cfg, sigma), "matched"
-        if not self._good(match, pts) and scan.has_odometry:  # odometry glitches
-            match, source = self._recover(reference, pts, guess, sigma), "recovered"
-        if not self._good(match, pts):
+        match: IcpResult | None = icp(ref, normals, pts, guess, self.cfg, sigma)
+        source = "matched"
+        if not self._good(match, pts, guess, sigma):
+            match, source = None, "fallback"
+            if scan.has_odometry:  # odometry glitches (a doubled turn)
+                match, source = self._recover(reference, pts, guess, wheel, sigma), "recovered"
+        if match is None:
             return guess, "fallback", None
         return match.pose, source, fused_covariance(match.information, sigma)
 
-    def _good(self, match: IcpResult, pts: np.ndarray) -> bool:
+    def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
+              sigma: Sequence[float]) -> bool:
+        """Enough pairs, close enough, and a turn from where ICP started within
+        MAX_TURN_SIGMAS of the prior (a room's walls also fit turned by 90°)."""
         return (match.share >= self.cfg.min_inliers and match.rms <= self.cfg.max_rms_m
-                and len(pts) >= 20)
+                and len(pts) >= 20 and abs(math.remainder(match.pose.theta - start.theta,
+                                                          math.tau))
+                <= MAX_TURN_SIGMAS * sigma[2])
+
+    def _plausible_turn(self, pose: Pose2D, guess: Pose2D, wheel: Pose2D) -> bool:
+        """A recovered turn may differ from the odometry's by no more than the odometry
+        turned (a doubled or a missed turn) plus the widest turn retried: not by the 90°
+        that fits a corridor's walls to a hall's."""
+        return (abs(math.remainder(pose.theta - guess.theta, math.tau))
+                <= abs(wheel.theta) + math.radians(max(RECOVERY_TURNS_DEG)))
 
     def _recover(self, reference: tuple[PointIndex, np.ndarray], pts: np.ndarray,
-                 guess: Pose2D, sigma: Sequence[float]) -> IcpResult:
+                 guess: Pose2D, wheel: Pose2D, sigma: Sequence[float]) -> IcpResult | None:
         """Match again from the constant-velocity guess and from the odometry's guess turned
-        by each of RECOVERY_TURNS_DEG (a doubled turn), each with the same prior around
-        itself; the best good match wins."""
+        by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best good
+        match with a plausible turn wins (None: none)."""
         ref, normals = reference
         guesses = [compose(self._pose, self._last_increment)]
         guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
                     for d in RECOVERY_TURNS_DEG]
-        best = IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
+        best = None
         for g in guesses:
             match = icp(ref, normals, pts, g, self.cfg, sigma)
-            if self._good(match, pts) and (match.share, -match.rms) > (best.share, -best.rms):
+            if (self._good(match, pts, g, sigma) and self._plausible_turn(match.pose, guess, wheel)
+                    and (best is None or (match.share, -match.rms) > (best.share, -best.rms))):
                 best = match
         return best

@@ -22,7 +22,7 @@ import numpy as np
 from dynslam_cli.geometry import compose, relative, wrap_angle
 from dynslam_cli.types import Pose2D
 
-WORLD_NAMES = ("corridors", "arena", "hall", "crowd")
+WORLD_NAMES = ("corridors", "arena", "hall", "crowd", "office")
 SEEN_BEFORE_MOVE = 10  # scans that must hit a box at its place before it is moved again
 
 
@@ -184,6 +184,22 @@ def build_world(name: str, seed: int = 0, walkers: int | None = None) -> World:
         route = [(5.5, 4.0), (8.5, 4.0), (8.5, 6.0), (5.5, 6.0)]
         return World(name, np.array(walls, float), route, Pose2D(5.5, 5.0, -math.pi / 2),
                      walkers=people, speed=0.3)
+    if name == "office":
+        # Hard on purpose: a 50 m corridor, 2 m wide, with two door recesses only (the walls
+        # say nothing about where along it the robot is), opening into a 24 m × 24 m hall
+        # with two pillars, where the 8 m laser often sees one wall or none. Boxes are
+        # moved out of view along the hall's walls.
+        walls = [[0, -1, 50, -1], [0, 1, 14.5, 1], [15.5, 1, 34.5, 1], [35.5, 1, 50, 1],
+                 [0, -1, 0, 1], [50, -12, 74, -12], [74, -12, 74, 12], [74, 12, 50, 12],
+                 [50, 12, 50, 1], [50, -1, 50, -12]]
+        for x in (14.5, 34.5):  # 1 m doors, 0.4 m deep
+            walls += [[x, 1, x, 1.4], [x, 1.4, x + 1, 1.4], [x + 1, 1.4, x + 1, 1]]
+        walls += _rect(59.7, -2.3, 60.3, -1.7) + _rect(64.7, 2.7, 65.3, 3.3)
+        boxes = [Box("box0", 0.3, 0.3, [(72.5, -10.5), (72.5, 10.5), (51.5, 10.5)])]
+        route = [(2.0, 0.0), (48.0, 0.0), (56.0, -7.0), (68.0, -7.0), (68.0, 7.0),
+                 (56.0, 7.0), (48.0, 0.0)]
+        return World(name, np.array(walls, float), route, Pose2D(2.0, 0.0, 0.0),
+                     boxes=boxes, relocations=6, speed=0.8)
     raise ValueError(f"unknown world {name!r}; built-in: {', '.join(WORLD_NAMES)}")
 
 
