@@ -86,16 +86,16 @@ class LoopConfig:
     edge_sigma_m: float = 0.05
     """Added (as a standard deviation) to a loop edge's translation uncertainty."""
     consistent_chi2: float = 11.34
-    """A closure within this χ² of the graph's estimate (99%, 3 dof) is added at once; one
-    that would move the graph waits for a second closure that agrees with it ..."""
-    pair_window_m: float = 10.0
-    """... made within this much driving after it (the last few wait) ..."""
+    """A closure within this χ² of the graph's estimate (99%, 3 dof) is added at once; any
+    other waits for a second closure that agrees with it ..."""
+    pair_window_m: float = 50.0
+    """... made within this much driving after it (the last ``pending_closures`` wait) ..."""
     pair_tolerance_m: float = 0.15
     pair_tolerance_deg: float = 2.0
     """... closing the loop of the two closures to this (plus ``drift_per_m`` and
     ``pair_drift_deg_per_m`` times the path between their ends)."""
     pair_drift_deg_per_m: float = 0.2
-    pending_closures: int = 4
+    pending_closures: int = 8
 
 
 FIELD_RES_M = 0.05
@@ -380,10 +380,11 @@ class LoopCloser:
     def accept(self, closure: Closure) -> list[Closure]:
         """The closures to add to the graph now. One the graph already agrees with (within
         ``consistent_chi2``) is added at once; one that would move the graph waits until a
-        second closure, made close by along the path, tells the same story: the loop of
-        the two closures and the two stretches of path between their ends must close
+        second closure, made later along the path, tells the same story: the loop of the
+        two closures and the two stretches of path between their ends must close
         (:meth:`_consistent`). A false match (a similar-looking place elsewhere) rarely
-        finds a partner that agrees with it; a true one finds one a metre later."""
+        finds a partner that agrees with it; a true one finds one a few metres later, or
+        at the next revisit."""
         if closure.chi2 <= self.cfg.consistent_chi2:
             return [closure]
         for other in reversed(self._pending):
