@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 
 install: $(BIN)/dynslam
 
-$(BIN)/dynslam: pyproject.toml setup.py dynslam_cli/kernels.pyx
+$(BIN)/dynslam: pyproject.toml setup.py $(wildcard dynslam_cli/*/*.pyx)
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'

@@ -19,7 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from dynslam_cli.config import Config
 from dynslam_cli.evaluate import MapThresholds, score_events, snapshots_at
-from dynslam_cli.localization import EkfConfig
+from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.simulate import (
     Box,
     LaserModel,

@@ -44,7 +44,7 @@ class Job:
     force: bool = False
     reader: dict[str, Any] = field(default_factory=dict)
     read_ahead: bool = True
-    """Read and scan-match in a second process (see dynslam_cli.frontend); off when the
+    """Read and scan-match in a second process (see dynslam_cli.localization.frontend); off when the
     batch already runs one worker per core."""
 
 

@@ -23,11 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from dynslam_cli.corners import CornerConfig
 from dynslam_cli.errors import ConfigError
-from dynslam_cli.localization import EkfConfig
-from dynslam_cli.loopclosure import LoopConfig
-from dynslam_cli.scanmatch import MatchConfig
+from dynslam_cli.localization.corners import CornerConfig
+from dynslam_cli.localization.cornerslam import EkfConfig
+from dynslam_cli.localization.loops import LoopConfig
+from dynslam_cli.localization.scanmatch import MatchConfig
 from dynslam_cli.types import Scan
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from dynslam_cli.config import Config
 from dynslam_cli.geometry import wrap_angles
-from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
 from dynslam_cli.types import Scan
 

@@ -15,7 +15,7 @@ from typing import Any
 
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
-from dynslam_cli.frontend import ForkedFrontEnd, open_front_end
+from dynslam_cli.localization.frontend import ForkedFrontEnd, open_front_end
 from dynslam_cli.pipeline import run
 
 LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
@@ -41,7 +41,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                 read_ahead: bool = True) -> tuple[dict[str, Any], Any]:
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
     ``on_progress(bytes_done, bytes_total)`` is called every few scans. ``read_ahead``: read
-    and measure the scans in a second process (on Linux; see dynslam_cli.frontend)."""
+    and measure the scans in a second process (on Linux; see dynslam_cli.localization.frontend)."""
     from formats import open_log
     from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from formats.picture import SnapshotWriter

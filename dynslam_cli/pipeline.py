@@ -22,26 +22,17 @@ from typing import Protocol
 
 import numpy as np
 
-from dynslam_cli import kernels
 from dynslam_cli.config import Config
-from dynslam_cli.dynamic import (
-    OCCUPIED,
-    TABLE_1,
-    TABLE_2,
-    TABLE_3,
-    UNKNOWN,
-    InverseModel,
-    classify_neighbourhood,
-    classify_static,
-    neighbourhood_offsets,
-    radius_cells,
-)
-from dynslam_cli.frontend import Measure, Measurement
 from dynslam_cli.geometry import compose, relative, transform_points, wrap_angles
-from dynslam_cli.grid import GridStack, Observation, OccupancyMap
-from dynslam_cli.localization import CornerSlam
-from dynslam_cli.loopclosure import LoopCloser
-from dynslam_cli.scanmatch import scan_points
+from dynslam_cli.localization.cornerslam import CornerSlam
+from dynslam_cli.localization.frontend import Measure, Measurement
+from dynslam_cli.localization.loops import LoopCloser
+from dynslam_cli.localization.scanmatch import scan_points
+from dynslam_cli.mapping.dynamic import (
+    TABLE_3,
+    DynamicMapper,
+)
+from dynslam_cli.mapping.grid import GridStack, OccupancyMap
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -70,98 +61,6 @@ class SlamResult:
     landmarks: list[Landmark] = field(default_factory=list)
     localization: dict[str, int] = field(default_factory=dict)
     """Counts for the summary: scan matches, fallbacks, graph nodes, loop closures."""
-
-
-class DynamicMapper:
-    """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
-    and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
-
-    def __init__(self, config: Config, dynamic: bool = True) -> None:
-        self.config = config
-        self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
-        m, d = config.map, config.dynamic
-        self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
-        self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
-                               pad_cells=self._radius)
-        static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
-                                                       m.p_clamp_max)
-        self._static = static_model
-        self._dynamic = InverseModel.from_probabilities(d.p_high, d.p_low, d.p_clamp_min,
-                                                        d.p_clamp_max)
-        if d.enabled:
-            self._table_1 = static_model.table(TABLE_1)
-            self._table_2 = self._dynamic.table(TABLE_2)
-        else:  # an ordinary grid: every hit raises S, D is never touched
-            self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
-                                                for k in TABLE_1})
-            self._table_2 = None
-        self._offsets_for = -1
-        self._offsets_cache = np.zeros(0, np.intp)
-        self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
-                                                                      self._table_2)
-                                      if t is not None)
-
-    def integrate(self, pose: Pose2D, scan: Scan) -> None:
-        """One scan from the robot's pose ``pose`` (map frame)."""
-        observation = self.observe(pose, scan)
-        free_prev, hit_prev = self.classify_against_static_map(observation)
-        self.update_static_map(observation, free_prev, hit_prev)
-        self.update_dynamic_map(observation, free_prev, hit_prev)
-
-    def classify_landmarks(self, positions: np.ndarray) -> np.ndarray:
-        """State of S^{t-1} around each landmark (neighbourhood rule), for Table 3. Without
-        S/D separation every landmark counts as Occupied (static)."""
-        if self._table_2 is None or len(positions) == 0:
-            return np.full(len(positions), OCCUPIED, np.int8)
-        g, m = self.grids, self.config.map
-        cells, inside = g.flat_index_inside(positions[:, 0], positions[:, 1], self._radius)
-        states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
-        states[inside] = classify_neighbourhood(
-            g.layers["static"].reshape(-1), cells, self._offsets(),
-            m.free_threshold, m.occupied_threshold)
-        return states
-
-    def _offsets(self) -> np.ndarray:
-        """The neighbourhood's flat-index offsets for the grid's current width."""
-        cols = self.grids.shape[1]
-        if self._offsets_for != cols:
-            self._offsets_cache = neighbourhood_offsets(self._radius, cols)
-            self._offsets_for = cols
-        return self._offsets_cache
-
-    def observe(self, pose: Pose2D, scan: Scan) -> Observation:
-        """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
-        laser = self.config.laser
-        return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
-                                  scan.max_range, laser.min_range_m, laser.clear_cap_m)
-
-    def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the
-        neighbourhood of each cell hit (Sec. 5)."""
-        if self._table_2 is None:  # an ordinary grid: the state does not matter
-            return (np.zeros(len(obs.free), np.int8), np.zeros(len(obs.hit), np.int8))
-        m = self.config.map
-        s = self.grids.layers["static"].reshape(-1)
-        if self._free_rows_uniform:  # Tables 1 and 2 give "low" whatever S^{t-1} was
-            free_prev = np.zeros(len(obs.free), np.int8)
-        else:
-            free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
-        hit_prev = classify_neighbourhood(s, obs.hit, self._offsets(), m.free_threshold,
-                                          m.occupied_threshold)
-        return free_prev, hit_prev
-
-    def update_static_map(self, obs: Observation, free_prev: np.ndarray,
-                          hit_prev: np.ndarray) -> None:
-        """Eq. 12 with Table 1 as the inverse sensor model."""
-        _apply_inverse_model(self.grids.layers["static"], obs, free_prev, hit_prev,
-                             self._table_1, self._static)
-
-    def update_dynamic_map(self, obs: Observation, free_prev: np.ndarray,
-                           hit_prev: np.ndarray) -> None:
-        """Eq. 13 with Table 2 as the inverse sensor model."""
-        if self._table_2 is not None and self._keep_dynamic:
-            _apply_inverse_model(self.grids.layers["dynamic"], obs, free_prev, hit_prev,
-                                 self._table_2, self._dynamic)
 
 
 class ScanStore:
@@ -366,17 +265,6 @@ class DynamicSlam:
                                 cls, r.observations, float(cov[0, 0]), float(cov[0, 1]),
                                 float(cov[1, 1])))
         return out
-
-
-def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,
-                         hit_prev: np.ndarray, table: np.ndarray, model: InverseModel) -> None:
-    """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
-    to the model's range."""
-    flat = layer.reshape(-1)
-    kernels.add_clamped(flat, obs.free, free_prev, table[:, 0], model.clamp_min,
-                        model.clamp_max)
-    kernels.add_clamped(flat, obs.hit, hit_prev, table[:, 1], model.clamp_min,
-                        model.clamp_max)
 
 
 def run(scans: Iterable[Scan], config: Config,

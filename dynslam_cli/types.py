@@ -40,4 +40,4 @@ class Scan:
     source_line: int = 0
     has_odometry: bool = True
     """False for logs without odometry (laser-only bags): ``odom`` is then the origin and
-    the motion prior is "stationary, with wide noise" (see dynslam_cli.scanmatch)."""
+    the motion prior is "stationary, with wide noise" (see dynslam_cli.localization.scanmatch)."""

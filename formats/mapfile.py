@@ -15,7 +15,7 @@ import numpy as np
 from PIL import Image
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.mapping.grid import OccupancyMap
 
 
 def to_pixels(prob: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import Landmark
 
 DYNAMIC_RGB = (220, 30, 30)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from dynslam_cli.config import Config, DynamicConfig
-from dynslam_cli.dynamic import (
+from dynslam_cli.localization.cornerslam import EkfConfig
+from dynslam_cli.mapping.dynamic import (
     FREE,
     OCCUPIED,
     TABLE_1,
@@ -20,8 +21,7 @@ from dynslam_cli.dynamic import (
     classify_static,
     neighbourhood_offsets,
 )
-from dynslam_cli.grid import logit
-from dynslam_cli.localization import EkfConfig
+from dynslam_cli.mapping.grid import logit
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.types import Pose2D, Scan
 

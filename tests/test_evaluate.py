@@ -16,7 +16,7 @@ from dynslam_cli.evaluate import (
     relation_errors,
     score_run,
 )
-from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.simulate import build_world, simulate
 from formats.relations import read_relations
 
@@ -99,7 +99,7 @@ def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
     with open(log, "w") as f:
         write_carmen(f, steps, LaserModel(), "flaser", "arena")
     source, _, reader = open_log(str(log), ReaderOptions())
-    from dynslam_cli.localization import EkfConfig
+    from dynslam_cli.localization.cornerslam import EkfConfig
 
     result = run(reader.scans(), Config(ekf=EkfConfig(localization="odometry")))
     source.close()

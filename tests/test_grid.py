@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from dynslam_cli.grid import GridStack
+from dynslam_cli.mapping.grid import GridStack
 from dynslam_cli.types import Pose2D
 
 

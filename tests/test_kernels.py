@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from dynslam_cli import kernels
-from dynslam_cli.grid import GridStack
-from dynslam_cli.kernels import PointIndex
+from dynslam_cli.localization import _graph, _loops
+from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.mapping.grid import GridStack
 from dynslam_cli.types import Pose2D
 
 RNG = np.random.default_rng(7)
@@ -83,7 +83,7 @@ def test_mean_scores_match_numpy():
     grid = RNG.uniform(0, 1, (60, 80))
     pts = RNG.uniform(-1, 1, (50, 2))
     tx, ty = np.arange(-5, 6), np.arange(-3, 4)
-    got = kernels.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, np.array([0.3]), tx, ty)[0]
+    got = _loops.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, np.array([0.3]), tx, ty)[0]
     c, s = math.cos(0.3), math.sin(0.3)
     moved = np.column_stack((1.0 + c * pts[:, 0] - s * pts[:, 1],
                              1.2 + s * pts[:, 0] + c * pts[:, 1]))
@@ -113,11 +113,11 @@ def test_sparse_solve_matches_dense_in_any_order():
     data = 0.5 * a[rows, cols][by_col]
     b = RNG.standard_normal(n)
     for order in (np.arange(n), RNG.permutation(n)):
-        x = kernels.solve_spd(indptr, rows[by_col].copy(), data, order.astype(np.intp), b)
+        x = _graph.solve_spd(indptr, rows[by_col].copy(), data, order.astype(np.intp), b)
         np.testing.assert_allclose(x, np.linalg.solve(a, b), rtol=1e-10, atol=1e-12)
     a[3, 3] = -1.0  # indefinite
     with pytest.raises(ValueError, match="positive definite"):
-        kernels.solve_spd(indptr, rows[by_col].copy(), 0.5 * a[rows, cols][by_col],
+        _graph.solve_spd(indptr, rows[by_col].copy(), 0.5 * a[rows, cols][by_col],
                           np.arange(n, dtype=np.intp), b)
 
 
@@ -141,7 +141,7 @@ def _fill(n: int, ei: np.ndarray, ej: np.ndarray, order: np.ndarray) -> int:
 def test_minimum_degree_order_fills_in_less():
     # a star: the leaves go first, lowest index first, until the centre ties with the last
     leaves = np.arange(1, 8, dtype=np.intp)
-    order = kernels.minimum_degree(8, np.zeros(7, dtype=np.intp), leaves)
+    order = _graph.minimum_degree(8, np.zeros(7, dtype=np.intp), leaves)
     assert list(order) == [1, 2, 3, 4, 5, 6, 0, 7]
     # a chain that passes the same places again and again, like a robot going round a room
     n = 400
@@ -151,7 +151,7 @@ def test_minimum_degree_order_fills_in_less():
         ei.append(k)
         ej.append(k + 40 + k % 11)
     ei, ej = np.array(ei, dtype=np.intp), np.array(ej, dtype=np.intp)
-    order = kernels.minimum_degree(n, ei, ej)
+    order = _graph.minimum_degree(n, ei, ej)
     assert sorted(order) == list(range(n))
     assert _fill(n, ei, ej, order) < 0.5 * _fill(n, ei, ej, np.arange(n))
-    assert list(kernels.minimum_degree(n, ei, ej)) == list(order)  # deterministic
+    assert list(_graph.minimum_degree(n, ei, ej)) == list(order)  # deterministic

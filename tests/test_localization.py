@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from dynslam_cli.corners import CornerConfig, detect_corners
-from dynslam_cli.dynamic import FREE, OCCUPIED, TABLE_3, UNKNOWN
-from dynslam_cli.ekf import (
+from dynslam_cli.localization.corners import CornerConfig, detect_corners
+from dynslam_cli.localization.cornerslam import CornerSlam, EkfConfig
+from dynslam_cli.localization.ekf import (
     Ekf,
     NoiseModel,
     inverse_observe,
@@ -20,7 +20,7 @@ from dynslam_cli.ekf import (
     observe,
     observe_jacobians,
 )
-from dynslam_cli.localization import CornerSlam, EkfConfig
+from dynslam_cli.mapping.dynamic import FREE, OCCUPIED, TABLE_3, UNKNOWN
 from dynslam_cli.simulate import Box, ray_cast
 from dynslam_cli.types import Pose2D
 
@@ -79,7 +79,7 @@ def test_update_pulls_pose_and_keeps_covariance_symmetric_positive():
 def _slam_with_landmark(convex: bool) -> CornerSlam:
     slam = CornerSlam(Pose2D(), EkfConfig())
     slam.ekf.add_landmark(np.array([2.0, 0.0]))
-    from dynslam_cli.localization import LandmarkTrack
+    from dynslam_cli.localization.cornerslam import LandmarkTrack
 
     slam.tracks.append(LandmarkTrack(0, convex))
     return slam

@@ -7,17 +7,17 @@ import math
 import numpy as np
 import pytest
 
-from dynslam_cli.ekf import NoiseModel
 from dynslam_cli.geometry import compose, relative
-from dynslam_cli.localization import EkfConfig
-from dynslam_cli.loopclosure import (
+from dynslam_cli.localization.cornerslam import EkfConfig
+from dynslam_cli.localization.ekf import NoiseModel
+from dynslam_cli.localization.graph import PoseGraph, edge_errors
+from dynslam_cli.localization.loops import (
     LoopCloser,
     LoopConfig,
     correlative_match,
     likelihood_field,
 )
-from dynslam_cli.posegraph import PoseGraph, edge_errors
-from dynslam_cli.scanmatch import MatchConfig, ScanMatcher, scan_points
+from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
 from dynslam_cli.simulate import ray_cast
 from dynslam_cli.types import Pose2D, Scan
 
@@ -158,8 +158,8 @@ def corridor_points(length: float = 40.0) -> np.ndarray:
 def test_match_information_in_a_corridor_is_degenerate_along_it():
     """The walls pin the pose across the corridor and in heading, not along it: there the
     fused covariance is the odometry prior's."""
-    from dynslam_cli.kernels import PointIndex
-    from dynslam_cli.scanmatch import fused_covariance, icp
+    from dynslam_cli.localization._match import PointIndex
+    from dynslam_cli.localization.scanmatch import fused_covariance, icp
 
     pts = corridor_points()
     ref = PointIndex(pts)
@@ -182,7 +182,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 def test_a_false_loop_closure_waits_and_never_enters_alone():
     """A closure that would bend the graph is held; it enters only with a second closure
     that tells the same story. A lone false one never does, a pair of true ones do."""
-    from dynslam_cli.loopclosure import Closure
+    from dynslam_cli.localization.loops import Closure
 
     closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
     for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m

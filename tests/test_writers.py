@@ -9,7 +9,7 @@ import pytest
 from ruamel.yaml import YAML
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.grid import OccupancyMap
+from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import Landmark
 from formats.landmarks import HEADER, read_landmarks, write_landmarks
 from formats.mapfile import read_map, write_map

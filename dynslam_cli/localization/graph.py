@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynslam_cli import kernels
 from dynslam_cli.geometry import wrap_angles
+from dynslam_cli.localization import _graph
 
 CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 
@@ -73,7 +73,7 @@ class PoseGraph:
         by_column = np.argsort(cols, kind="stable")  # compressed columns; duplicates summed
         indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=3 * n))))
         indices = rows[by_column]
-        node_order = kernels.minimum_degree(n, i, j)
+        node_order = _graph.minimum_degree(n, i, j)
         order = (3 * node_order[:, None] + np.arange(3)).ravel()
         g_index = np.concatenate([(3 * i[:, None] + np.arange(3)).ravel(),
                                   (3 * j[:, None] + np.arange(3)).ravel()])
@@ -92,7 +92,7 @@ class PoseGraph:
                                                      (bt_w @ err[:, :, None]).ravel()]),
                             minlength=3 * n)
             try:
-                step = -kernels.solve_spd(indptr, indices, vals[by_column], order,
+                step = -_graph.solve_spd(indptr, indices, vals[by_column], order,
                                           g).reshape(-1, 3)
             except ValueError:  # not positive definite (degenerate edges): keep the poses
                 break

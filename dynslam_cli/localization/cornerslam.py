@@ -4,7 +4,7 @@ association, and Table 3 — a landmark corrects the pose only if its place in S
 Landmarks pass a tentative stage first (seen ``confirm_observations`` times close together)
 so that clutter does not fill the state. Per-scan cost is bounded by the size of the state:
 a landmark not seen for ``active_window_scans`` leaves the filter (the pose graph, not the
-EKF, closes long loops: see dynslam_cli.loopclosure) and the state never holds more than
+EKF, closes long loops: see dynslam_cli.localization.loops) and the state never holds more than
 ``max_landmarks``. Landmarks that leave are kept for the landmark map if they were seen
 ``keep_observations`` times; rarer ones were clutter and are forgotten.
 """
@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dynslam_cli.corners import Corner, CornerConfig, detect_corners
-from dynslam_cli.dynamic import TABLE_3
-from dynslam_cli.ekf import Ekf, NoiseModel, motion_noise
 from dynslam_cli.geometry import compose
+from dynslam_cli.localization.corners import Corner, CornerConfig, detect_corners
+from dynslam_cli.localization.ekf import Ekf, NoiseModel, motion_noise
+from dynslam_cli.mapping.dynamic import TABLE_3
 from dynslam_cli.types import Pose2D, Scan
 
 NO_ODOMETRY_NOISE_SCALE = 50.0  # × the motion-noise floor: ~0.1 m and 5° per scan

@@ -3,8 +3,8 @@ motion since the previous scan and the corners seen), read and measured ahead of
 in a second process.
 
 The motion of a scan is the wheel odometry's, or, where the scan matches the key scan well,
-the scan-matched one (:class:`dynslam_cli.scanmatch.ScanMatcher`); the corners are the
-landmark observations (:func:`dynslam_cli.localization.observe_corners`). Reading the log
+the scan-matched one (:class:`dynslam_cli.localization.scanmatch.ScanMatcher`); the corners are the
+landmark observations (:func:`dynslam_cli.localization.cornerslam.observe_corners`). Reading the log
 and measuring depend on nothing the filter, the pose graph or the maps compute, so on Linux
 (:func:`can_fork`) :class:`ForkedFrontEnd` does both in a forked child process on another
 core and sends the scans with their measurements through a pipe, in log order, a batch at a
@@ -30,8 +30,8 @@ import numpy as np
 from dynslam_cli.config import Config
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.geometry import relative
-from dynslam_cli.localization import observe_corners
-from dynslam_cli.scanmatch import ScanMatcher
+from dynslam_cli.localization.cornerslam import observe_corners
+from dynslam_cli.localization.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
 
 if TYPE_CHECKING:

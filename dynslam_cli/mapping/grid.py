@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynslam_cli import kernels
+from dynslam_cli.mapping import _grid
 from dynslam_cli.types import Pose2D
 
 
@@ -136,7 +136,7 @@ class GridStack:
         angles = np.ascontiguousarray(angles, dtype=np.float64)
         beams = (sensor.x, sensor.y, sensor.theta, ranges, angles, min_range, max_range,
                  clear_cap)
-        x0, y0, x1, y1 = kernels.beam_extent(*beams)
+        x0, y0, x1, y1 = _grid.beam_extent(*beams)
         pad = self.pad
         self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
         self._scans += 1
@@ -146,7 +146,7 @@ class GridStack:
         # Free space stops one cell short of a hit: the cell a surface passes through is
         # often partly free, and marking it free from one angle and hit from another would
         # erode walls and flicker D.
-        free, hit = kernels.trace_beams(
+        free, hit = _grid.trace_beams(
             self.seen.reshape(-1).view(np.uint8), self._listed.reshape(-1), self._scans,
             self.shape[1], self.resolution, self.origin_row, self.origin_col, *beams)
         return Observation(free=free, hit=hit)

@@ -23,10 +23,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynslam_cli import kernels
-from dynslam_cli.ekf import NoiseModel, motion_std
 from dynslam_cli.geometry import compose, relative, transform_points
-from dynslam_cli.kernels import PointIndex
+from dynslam_cli.localization import _match
+from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
@@ -78,7 +78,7 @@ def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
     """Valid end points (range in (0.05 m, max range)) of every step-th beam, in the robot
     frame (N×2)."""
     laser = scan.laser
-    return kernels.end_points(np.ascontiguousarray(scan.ranges, dtype=np.float64),
+    return _match.end_points(np.ascontiguousarray(scan.ranges, dtype=np.float64),
                               np.ascontiguousarray(scan.angles, dtype=np.float64), step,
                               laser.x, laser.y, laser.theta, 0.05,
                               min(max_range, scan.max_range))
@@ -114,7 +114,7 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     if prior_sigma is not None:  # information of the guess, in residual units
         ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
         prior = [r * r for r in ratios]
-    x, y, th, share, rms, ok, h = kernels.icp(
+    x, y, th, share, rms, ok, h = _match.icp(
         ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
         RESIDUAL_SIGMA_M)

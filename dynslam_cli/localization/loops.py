@@ -2,10 +2,10 @@
 
 The EKF (Sec. 4) keeps only the landmarks of the last stretch of the run; what drift it
 leaves over a long loop is removed here, the way graph-based SLAM does it. Every key scan
-becomes a node of a :class:`~dynslam_cli.posegraph.PoseGraph`, chained to the previous one by
-the EKF's relative motion. When the robot is near a node it left a long way back (near by
-the current estimate, within a radius that grows with the distance driven since the last
-closure), the scans around the new node are matched against those around the old one:
+becomes a node of a :class:`~dynslam_cli.localization.graph.PoseGraph`, chained to the
+previous one by the EKF's relative motion. When the robot is near a node it left a long way
+back (near by the current estimate, within a radius that grows with the distance driven
+since the last closure), the scans around the new node are matched against those around the old one:
 
 1. **correlative search** over a window of translations and rotations on a likelihood field
    of the old scans (a coarse pass on a max-pooled field bounds every fine cell below it,
@@ -30,13 +30,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynslam_cli import kernels
-from dynslam_cli.ekf import motion_std
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
-from dynslam_cli.kernels import PointIndex
-from dynslam_cli.localization import EkfConfig
-from dynslam_cli.posegraph import PoseGraph, edge_errors
-from dynslam_cli.scanmatch import MatchConfig, icp
+from dynslam_cli.localization import _loops
+from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization.cornerslam import EkfConfig
+from dynslam_cli.localization.ekf import motion_std
+from dynslam_cli.localization.graph import PoseGraph, edge_errors
+from dynslam_cli.localization.scanmatch import MatchConfig, icp
 from dynslam_cli.types import Pose2D
 
 
@@ -150,8 +150,8 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     cols, rows = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T.copy()
     fine = np.zeros((shape[1], shape[0]))
     coarse = np.zeros((shape[1], shape[0]))
-    kernels.splat_max(fine, rows, cols, FINE_KERNEL)
-    kernels.splat_max(coarse, rows, cols, COARSE_KERNEL)
+    _loops.splat_max(fine, rows, cols, FINE_KERNEL)
+    _loops.splat_max(coarse, rows, cols, COARSE_KERNEL)
     index = PointIndex(points)
     return LikelihoodField(fine, coarse, lo, index)
 
@@ -160,7 +160,7 @@ def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.nd
             base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
     """Mean field value of ``pts`` rotated by each θ and moved to base + (tx, ty) cells, for
     every (θ, ty, tx): an array of shape (len(thetas), len(ty), len(tx))."""
-    return kernels.mean_scores(grid, float(origin[0]), float(origin[1]), FIELD_RES_M, pts,
+    return _loops.mean_scores(grid, float(origin[0]), float(origin[1]), FIELD_RES_M, pts,
                                float(base[0]), float(base[1]), thetas,
                                tx.astype(np.intp), ty.astype(np.intp))
 

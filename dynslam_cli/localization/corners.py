@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynslam_cli import kernels
+from dynslam_cli.localization import _corners
 
 MAX_BEAMS_BETWEEN_SIDES = 3  # beams at the very corner may form a run of their own
 
@@ -59,7 +59,7 @@ class Corner:
 def detect_corners(ranges: np.ndarray, angles: np.ndarray, max_range: float,
                    cfg: CornerConfig) -> list[Corner]:
     """Corners of one scan (see the module docstring)."""
-    found = kernels.detect_corners(
+    found = _corners.detect_corners(
         np.ascontiguousarray(ranges, dtype=np.float64),
         np.ascontiguousarray(angles, dtype=np.float64), min(cfg.max_range_m, 0.95 * max_range),
         cfg.jump_m, cfg.jump_ratio, cfg.split_tolerance_m, cfg.min_points, cfg.min_length_m,

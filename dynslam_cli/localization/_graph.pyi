@@ -1,0 +1,7 @@
+"""Type signatures of localization/_graph.pyx (documented there)."""
+
+import numpy as np
+
+def minimum_degree(n: int, ei: np.ndarray, ej: np.ndarray) -> np.ndarray: ...
+def solve_spd(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, perm: np.ndarray,
+              rhs: np.ndarray) -> np.ndarray: ...

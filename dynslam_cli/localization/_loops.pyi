@@ -1,0 +1,9 @@
+"""Type signatures of localization/_loops.pyx (documented there)."""
+
+import numpy as np
+
+def splat_max(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+              kernel: np.ndarray) -> None: ...
+def mean_scores(grid: np.ndarray, ox: float, oy: float, res: float, pts: np.ndarray,
+                x: float, y: float, thetas: np.ndarray, tx: np.ndarray,
+                ty: np.ndarray) -> np.ndarray: ...

@@ -1,0 +1,74 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False
+"""Loop closure's inner loops: the likelihood field's splat and the correlative
+search's scores.
+
+Compiled by ``pip install`` (setup.py); the algorithm and its documentation live in
+``dynslam_cli.localization.loops``. No fast-math: results are the same on every run. The long loops release the
+GIL, so threads (a Dask worker's, say) can process several logs at once.
+"""
+
+import numpy as np
+
+from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+from libc.stdlib cimport calloc, free, malloc, realloc
+
+ctypedef unsigned char u8
+
+
+# -- correlative matching (loop closure) ----------------------------------------------------
+
+def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[::1] cols,
+              const double[:, ::1] kernel):
+    """grid[r + i, c + j] = max(itself, kernel[i + h, j + h]) around every distinct (r, c),
+    with h = kernel's half width (cells off the grid are skipped; (r, c) must be on it)."""
+    cdef Py_ssize_t h = kernel.shape[0] // 2, n = rows.shape[0], k, i, j, r, c
+    cdef Py_ssize_t nr = grid.shape[0], nc = grid.shape[1]
+    done = np.zeros(nr * nc, dtype=np.uint8)
+    cdef u8[::1] seen = done
+    with nogil:
+        for k in range(n):
+            if seen[rows[k] * nc + cols[k]]:
+                continue  # a repeat: the same splat again would change nothing
+            seen[rows[k] * nc + cols[k]] = 1
+            for i in range(max(-h, -rows[k]), min(h + 1, nr - rows[k])):
+                r = rows[k] + i
+                for j in range(max(-h, -cols[k]), min(h + 1, nc - cols[k])):
+                    c = cols[k] + j
+                    if kernel[i + h, j + h] > grid[r, c]:
+                        grid[r, c] = kernel[i + h, j + h]
+
+
+def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
+                const double[:, ::1] pts, double x, double y, const double[::1] thetas,
+                const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty):
+    """Mean grid value of ``pts`` turned by each θ and moved to (x, y) plus (tx, ty) cells:
+    shape len(thetas) × len(ty) × len(tx); points off the grid count 0. The grid's cell
+    (0, 0) is centred on (ox, oy)."""
+    cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c, t
+    cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy
+    cdef double ct, st, px, py
+    out = np.zeros((thetas.shape[0], ny, nx))
+    cdef double[:, :, ::1] o = out
+    with nogil:
+        for t in range(thetas.shape[0]):
+            ct = cos(thetas[t])
+            st = sin(thetas[t])
+            for k in range(n):
+                px = x + ct * pts[k, 0] - st * pts[k, 1]
+                py = y + st * pts[k, 0] + ct * pts[k, 1]
+                ix = <Py_ssize_t>floor((px - ox) / res + 0.5)
+                iy = <Py_ssize_t>floor((py - oy) / res + 0.5)
+                for a in range(ny):
+                    r = iy + ty[a]
+                    if r < 0 or r >= rows:
+                        continue
+                    for b in range(nx):
+                        c = ix + tx[b]
+                        if 0 <= c < cols:
+                            o[t, a, b] += grid[r, c]
+            if n:
+                for a in range(ny):
+                    for b in range(nx):
+                        o[t, a, b] /= n
+    return out

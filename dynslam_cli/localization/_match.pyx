@@ -1,0 +1,289 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False
+"""The scan matcher's inner loops: a bucket index of 2-D points (nearest and k nearest),
+point-to-line ICP over it, and the end points of a scan's beams.
+
+Compiled by ``pip install`` (setup.py); the algorithm and its documentation live in
+``dynslam_cli.localization.scanmatch``. No fast-math: results are the same on every run. The long loops release the
+GIL, so threads (a Dask worker's, say) can process several logs at once.
+"""
+
+import numpy as np
+
+from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+from libc.stdlib cimport calloc, free, malloc, realloc
+
+ctypedef unsigned char u8
+
+
+cdef class PointIndex:
+    """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
+    bound (fastest when the bound is about the cell size: 3×3 buckets are searched)."""
+
+    cdef readonly object points
+    cdef const double[:, ::1] pts
+    cdef double cell, x0, y0
+    cdef Py_ssize_t nx, ny
+    cdef Py_ssize_t[::1] start
+    cdef Py_ssize_t[::1] order
+    cdef const double[:, ::1] by_bucket  # the points in bucket order: read in sequence
+
+    def __init__(self, points, double cell=0.25):
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self.pts = self.points
+        self.cell = cell
+        cdef Py_ssize_t n = self.pts.shape[0], i, b
+        if n == 0:
+            self.x0 = self.y0 = 0.0
+            self.nx = self.ny = 1
+        else:
+            self.x0 = float(np.min(self.points[:, 0]))
+            self.y0 = float(np.min(self.points[:, 1]))
+            self.nx = <Py_ssize_t>floor((np.max(self.points[:, 0]) - self.x0) / cell) + 1
+            self.ny = <Py_ssize_t>floor((np.max(self.points[:, 1]) - self.y0) / cell) + 1
+        bucket = np.empty(n, dtype=np.intp)
+        cdef Py_ssize_t[::1] bk = bucket
+        for i in range(n):
+            bk[i] = self._bucket(self.pts[i, 0], self.pts[i, 1])
+        counts = np.bincount(bucket, minlength=self.nx * self.ny)
+        self.start = np.concatenate(([0], np.cumsum(counts))).astype(np.intp)
+        self.order = np.argsort(bucket, kind="stable").astype(np.intp)
+        self.by_bucket = np.ascontiguousarray(self.points[self.order])
+
+    cdef inline Py_ssize_t _bucket(self, double x, double y) noexcept nogil:
+        cdef Py_ssize_t ix = <Py_ssize_t>floor((x - self.x0) / self.cell)
+        cdef Py_ssize_t iy = <Py_ssize_t>floor((y - self.y0) / self.cell)
+        return iy * self.nx + ix
+
+    cdef Py_ssize_t nearest(self, double x, double y, double bound) noexcept nogil:
+        """Index of the nearest point closer than ``bound``, or -1 (ties: the lower index)."""
+        cdef Py_ssize_t j
+        cdef double d2
+        return j if self._search(x, y, 1, bound * bound, &j, &d2) else -1
+
+    cdef Py_ssize_t _search(self, double x, double y, Py_ssize_t k, double bound2,
+                            Py_ssize_t* idx, double* d2s) noexcept nogil:
+        """The (up to) k nearest points closer than sqrt(bound2), nearest first (ties: the
+        lower index), into idx and d2s; returns how many. Searches rings of buckets around
+        the query's until no unsearched bucket can hold a nearer point."""
+        cdef double fx = (x - self.x0) / self.cell, fy = (y - self.y0) / self.cell
+        cdef Py_ssize_t cx = <Py_ssize_t>floor(fx), cy = <Py_ssize_t>floor(fy)
+        cdef Py_ssize_t r = 0, found = 0, ix, iy, b, q, j, m, step
+        cdef double d2, dx, dy, reach, worst
+        while True:
+            for iy in range(max(cy - r, 0), min(cy + r + 1, self.ny)):
+                # the ring's two ends in this row, or the whole row at its top and bottom
+                step = 1 if iy == cy - r or iy == cy + r else max(2 * r, 1)
+                ix = cx - r - step
+                while ix + step <= cx + r:
+                    ix += step
+                    if ix < 0 or ix >= self.nx:
+                        continue
+                    b = iy * self.nx + ix
+                    for q in range(self.start[b], self.start[b + 1]):
+                        dx = self.by_bucket[q, 0] - x
+                        dy = self.by_bucket[q, 1] - y
+                        d2 = dx * dx + dy * dy
+                        if d2 >= bound2 or (found == k and d2 > d2s[k - 1]):
+                            continue
+                        j = self.order[q]
+                        if found == k and d2 == d2s[k - 1] and j > idx[k - 1]:
+                            continue
+                        m = found if found < k else k - 1  # insert, dropping the k-th
+                        while m > 0 and (d2s[m - 1] > d2
+                                         or (d2s[m - 1] == d2 and idx[m - 1] > j)):
+                            d2s[m] = d2s[m - 1]
+                            idx[m] = idx[m - 1]
+                            m -= 1
+                        d2s[m] = d2
+                        idx[m] = j
+                        if found < k:
+                            found += 1
+            reach = min(min(fx - (cx - r), cx + r + 1 - fx),
+                        min(fy - (cy - r), cy + r + 1 - fy)) * self.cell
+            worst = d2s[k - 1] if found == k else bound2
+            if reach * reach >= worst:
+                return found
+            if cx - r <= 0 and cy - r <= 0 and cx + r >= self.nx - 1 and cy + r >= self.ny - 1:
+                return found  # the whole grid is searched
+            r += 1
+
+    def normals(self, Py_ssize_t k):
+        """Unit normal of every point: the direction of least spread of its k nearest
+        points (itself included)."""
+        cdef Py_ssize_t n = self.pts.shape[0], i, m, kk = min(k, n)
+        out = np.zeros((n, 2))
+        cdef double[:, ::1] o = out
+        idx = np.empty(max(kk, 1), dtype=np.intp)
+        dist = np.empty(max(kk, 1))
+        cdef Py_ssize_t[::1] iv = idx
+        cdef double[::1] dv = dist
+        cdef double mx, my, sxx, syy, sxy, dx, dy, a
+        for i in range(n):
+            self._search(self.pts[i, 0], self.pts[i, 1], kk, INFINITY, &iv[0], &dv[0])
+            mx = my = 0.0
+            for m in range(kk):
+                mx += self.pts[iv[m], 0]
+                my += self.pts[iv[m], 1]
+            mx /= kk
+            my /= kk
+            sxx = syy = sxy = 0.0
+            for m in range(kk):
+                dx = self.pts[iv[m], 0] - mx
+                dy = self.pts[iv[m], 1] - my
+                sxx += dx * dx
+                syy += dy * dy
+                sxy += dx * dy
+            a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
+            o[i, 0] = cos(a)
+            o[i, 1] = sin(a)
+        return out
+
+    def query(self, points, double bound):
+        """Nearest-point index of each query point (-1 where none is closer than bound)."""
+        cdef const double[:, ::1] q = np.ascontiguousarray(points, dtype=np.float64)
+        out = np.empty(q.shape[0], dtype=np.intp)
+        cdef Py_ssize_t[::1] o = out
+        cdef Py_ssize_t i
+        for i in range(q.shape[0]):
+            o[i] = self.nearest(q[i, 0], q[i, 1], bound)
+        return out
+
+
+cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
+    """Gaussian elimination with partial pivoting; 0 if singular."""
+    cdef int i, j, k, p
+    cdef double m, t
+    for i in range(3):
+        p = i
+        for k in range(i + 1, 3):
+            if fabs(a[k][i]) > fabs(a[p][i]):
+                p = k
+        if a[p][i] == 0.0:
+            return 0
+        if p != i:
+            for j in range(3):
+                t = a[i][j]; a[i][j] = a[p][j]; a[p][j] = t
+            t = b[i]; b[i] = b[p]; b[p] = t
+        for k in range(i + 1, 3):
+            m = a[k][i] / a[i][i]
+            for j in range(i, 3):
+                a[k][j] -= m * a[i][j]
+            b[k] -= m * b[i]
+    for i in range(2, -1, -1):
+        t = b[i]
+        for j in range(i + 1, 3):
+            t -= a[i][j] * x[j]
+        x[i] = t / a[i][i]
+    return 1
+
+
+def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
+        double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
+        double wx, double wy, double wth, double sigma):
+    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, ok, h): h is
+    the Huber-weighted Σ J Jᵀ of the pairs of the last iteration (3×3, the prior left out)."""
+    cdef double out[11]
+    cdef bint ok
+    with nogil:
+        ok = _icp(index, normals, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
+                  wth, sigma, out)
+    h = np.zeros((3, 3))
+    if not ok:
+        return gx, gy, gth, 0.0, INFINITY, False, h
+    h[0, 0], h[0, 1], h[0, 2] = out[5], out[6], out[7]
+    h[1, 1], h[1, 2], h[2, 2] = out[8], out[9], out[10]
+    h[1, 0], h[2, 0], h[2, 1] = out[6], out[7], out[9]
+    return out[0], out[1], out[2], out[3], out[4], True, h
+
+
+cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
+               double gx, double gy, double gth, int iterations, double gate_max,
+               double gate_min, double wx, double wy, double wth, double sigma,
+               double out[11]) noexcept nogil:
+    cdef Py_ssize_t n = pts.shape[0], i, j, used
+    cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
+    cdef double share = 0.0, rms = INFINITY, sq
+    cdef double a[3][3]
+    cdef double b[3]
+    cdef double d[3]
+    cdef double jac[3]
+    cdef int it, p, q
+    for it in range(iterations):
+        gate = gate_max + (gate_min - gate_max) * it / max(iterations - 1, 1)
+        c = cos(th)
+        s = sin(th)
+        for p in range(3):
+            b[p] = 0.0
+            for q in range(3):
+                a[p][q] = 0.0
+        used = 0
+        sq = 0.0
+        for i in range(n):
+            px = x + c * pts[i, 0] - s * pts[i, 1]
+            py = y + s * pts[i, 0] + c * pts[i, 1]
+            j = index.nearest(px, py, gate)
+            if j < 0:
+                continue
+            used += 1
+            nx = normals[j, 0]
+            ny = normals[j, 1]
+            r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
+            dpx = -s * pts[i, 0] - c * pts[i, 1]
+            dpy = c * pts[i, 0] - s * pts[i, 1]
+            jac[0] = nx
+            jac[1] = ny
+            jac[2] = nx * dpx + ny * dpy
+            w = 1.0 / max(1.0, fabs(r) / sigma)
+            for p in range(3):
+                b[p] += jac[p] * w * r
+                for q in range(3):
+                    a[p][q] += jac[p] * jac[q] * w
+            sq += r * r
+        share = used / <double>n if n else 0.0
+        if used < 10:
+            return False
+        out[5] = a[0][0]
+        out[6] = a[0][1]
+        out[7] = a[0][2]
+        out[8] = a[1][1]
+        out[9] = a[1][2]
+        out[10] = a[2][2]
+        a[0][0] += wx + 1e-9
+        a[1][1] += wy + 1e-9
+        a[2][2] += wth + 1e-9
+        b[0] += wx * (x - gx)
+        b[1] += wy * (y - gy)
+        b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
+        if not solve3(a, b, d):
+            return False
+        x -= d[0]
+        y -= d[1]
+        th -= d[2]
+        rms = sqrt(sq / used)
+        if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
+            break
+    out[0] = x
+    out[1] = y
+    out[2] = remainder(th, 2 * 3.141592653589793)
+    out[3] = share
+    out[4] = rms
+    return True
+
+
+
+def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t step,
+               double x, double y, double theta, double lo, double hi):
+    """End points (N×2) of every step-th beam whose range is in (lo, hi), seen from the pose
+    (x, y, θ) of the sensor."""
+    cdef Py_ssize_t n = ranges.shape[0], i, m = 0
+    out = np.empty(((n + step - 1) // step, 2))
+    cdef double[:, ::1] o = out
+    cdef double r
+    for i in range(0, n, step):
+        r = ranges[i]
+        if r > lo and r < hi:  # NaN fails both
+            o[m, 0] = x + r * cos(angles[i] + theta)
+            o[m, 1] = y + r * sin(angles[i] + theta)
+            m += 1
+    return out[:m].copy()

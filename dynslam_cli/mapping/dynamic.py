@@ -1,0 +1,208 @@
+"""The paper's two-map update (Sec. 3): Tables 1 and 2 and the neighbourhood rule (Sec. 5).
+
+Each cell of the previous static map S^{t-1} is *Free* (p < low threshold), *Occupied*
+(p > high threshold) or *Unknown*; each cell the scan saw is *Free* (a beam passed through)
+or *Occupied* (a beam ended there). The inverse sensor models map that pair to a *high* or a
+*low* value, which Eqs. 12 and 13 add in log-odds to S and D (priors p(S) = p(D) = 0.5 cancel).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from dynslam_cli.geometry import compose
+from dynslam_cli.mapping import _grid
+from dynslam_cli.mapping.grid import GridStack, Observation, logit
+from dynslam_cli.types import Pose2D, Scan
+
+if TYPE_CHECKING:
+    from dynslam_cli.config import Config
+
+FREE, UNKNOWN, OCCUPIED = 0, 1, 2
+STATE_NAMES = ("Free", "Unknown", "Occupied")
+HIGH, LOW = "high", "low"
+
+# Table 1: inverse observation model for the static map, p(S^t | S^{t-1}, o^t).
+TABLE_1 = {
+    (FREE, FREE): LOW,
+    (UNKNOWN, FREE): LOW,
+    (OCCUPIED, FREE): LOW,
+    (FREE, OCCUPIED): LOW,       # something stands where S was free: a mover, not static
+    (UNKNOWN, OCCUPIED): HIGH,   # static until seen to move
+    (OCCUPIED, OCCUPIED): HIGH,
+}
+
+# Table 2: inverse observation model for the dynamic map, p(D^t | o^t, S^{t-1}).
+TABLE_2 = {
+    (FREE, FREE): LOW,
+    (UNKNOWN, FREE): LOW,
+    (OCCUPIED, FREE): LOW,
+    (FREE, OCCUPIED): HIGH,      # the only way into D
+    (UNKNOWN, OCCUPIED): LOW,
+    (OCCUPIED, OCCUPIED): LOW,
+}
+
+
+# Table 3: static and dynamic landmark classification, by the landmark's place in S.
+TABLE_3 = {
+    FREE: "dynamic",
+    UNKNOWN: "dynamic",
+    OCCUPIED: "static",      # only these correct the robot's pose
+}
+
+
+@dataclass(frozen=True)
+class InverseModel:
+    """High/low values (log-odds) of one inverse sensor model and the map's clamp."""
+
+    high: float
+    low: float
+    clamp_min: float
+    clamp_max: float
+
+    @classmethod
+    def from_probabilities(cls, high: float, low: float, clamp_min: float, clamp_max: float
+                           ) -> InverseModel:
+        return cls(logit(high), logit(low), logit(clamp_min), logit(clamp_max))
+
+    def table(self, rows: dict[tuple[int, int], str]) -> np.ndarray:
+        """The table as a 3×2 array of log-odds, indexed [S^{t-1} state, o^t state]; stored
+        by columns, so each observation's column is a contiguous array."""
+        out = np.zeros((3, 2), order="F")
+        for (prev, obs), value in rows.items():
+            out[prev, 1 if obs == OCCUPIED else 0] = self.high if value == HIGH else self.low
+        return out
+
+
+def classify_static(logodds: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Free / Unknown / Occupied state of S^{t-1} cells (thresholds as probabilities)."""
+    state = np.full(logodds.shape, UNKNOWN, dtype=np.int8)
+    state[logodds < logit(low)] = FREE
+    state[logodds > logit(high)] = OCCUPIED
+    return state
+
+
+def neighbourhood_offsets(radius_cells: int, cols: int) -> np.ndarray:
+    """Flat-index offsets of the square window of the given radius (row-major grid)."""
+    r = np.arange(-radius_cells, radius_cells + 1)
+    return (r[:, None] * cols + r[None, :]).ravel().astype(np.intp)
+
+
+def classify_neighbourhood(static_flat: np.ndarray, cells: np.ndarray, offsets: np.ndarray,
+                           low: float, high: float) -> np.ndarray:
+    """State of S^{t-1} around each cell (Sec. 5): Occupied if any cell of the window is
+    Occupied, Free only if every cell is Free, else Unknown. So an end point that falls a
+    cell off a wall (pose or rounding error) still counts as hitting the wall."""
+    return _grid.classify_cells(np.asarray(static_flat, dtype=np.float32), cells, offsets,
+                                  logit(low), logit(high))
+
+
+def radius_cells(neighbourhood_m: float, resolution: float) -> int:
+    return max(0, math.ceil(neighbourhood_m / resolution - 1e-9))
+
+
+class DynamicMapper:
+    """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
+    and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
+
+    def __init__(self, config: Config, dynamic: bool = True) -> None:
+        self.config = config
+        self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
+        m, d = config.map, config.dynamic
+        self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
+        self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
+                               pad_cells=self._radius)
+        static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
+                                                       m.p_clamp_max)
+        self._static = static_model
+        self._dynamic = InverseModel.from_probabilities(d.p_high, d.p_low, d.p_clamp_min,
+                                                        d.p_clamp_max)
+        if d.enabled:
+            self._table_1 = static_model.table(TABLE_1)
+            self._table_2 = self._dynamic.table(TABLE_2)
+        else:  # an ordinary grid: every hit raises S, D is never touched
+            self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
+                                                for k in TABLE_1})
+            self._table_2 = None
+        self._offsets_for = -1
+        self._offsets_cache = np.zeros(0, np.intp)
+        self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
+                                                                      self._table_2)
+                                      if t is not None)
+
+    def integrate(self, pose: Pose2D, scan: Scan) -> None:
+        """One scan from the robot's pose ``pose`` (map frame)."""
+        observation = self.observe(pose, scan)
+        free_prev, hit_prev = self.classify_against_static_map(observation)
+        self.update_static_map(observation, free_prev, hit_prev)
+        self.update_dynamic_map(observation, free_prev, hit_prev)
+
+    def classify_landmarks(self, positions: np.ndarray) -> np.ndarray:
+        """State of S^{t-1} around each landmark (neighbourhood rule), for Table 3. Without
+        S/D separation every landmark counts as Occupied (static)."""
+        if self._table_2 is None or len(positions) == 0:
+            return np.full(len(positions), OCCUPIED, np.int8)
+        g, m = self.grids, self.config.map
+        cells, inside = g.flat_index_inside(positions[:, 0], positions[:, 1], self._radius)
+        states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
+        states[inside] = classify_neighbourhood(
+            g.layers["static"].reshape(-1), cells, self._offsets(),
+            m.free_threshold, m.occupied_threshold)
+        return states
+
+    def _offsets(self) -> np.ndarray:
+        """The neighbourhood's flat-index offsets for the grid's current width."""
+        cols = self.grids.shape[1]
+        if self._offsets_for != cols:
+            self._offsets_cache = neighbourhood_offsets(self._radius, cols)
+            self._offsets_for = cols
+        return self._offsets_cache
+
+    def observe(self, pose: Pose2D, scan: Scan) -> Observation:
+        """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
+        laser = self.config.laser
+        return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
+                                  scan.max_range, laser.min_range_m, laser.clear_cap_m)
+
+    def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the
+        neighbourhood of each cell hit (Sec. 5)."""
+        if self._table_2 is None:  # an ordinary grid: the state does not matter
+            return (np.zeros(len(obs.free), np.int8), np.zeros(len(obs.hit), np.int8))
+        m = self.config.map
+        s = self.grids.layers["static"].reshape(-1)
+        if self._free_rows_uniform:  # Tables 1 and 2 give "low" whatever S^{t-1} was
+            free_prev = np.zeros(len(obs.free), np.int8)
+        else:
+            free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
+        hit_prev = classify_neighbourhood(s, obs.hit, self._offsets(), m.free_threshold,
+                                          m.occupied_threshold)
+        return free_prev, hit_prev
+
+    def update_static_map(self, obs: Observation, free_prev: np.ndarray,
+                          hit_prev: np.ndarray) -> None:
+        """Eq. 12 with Table 1 as the inverse sensor model."""
+        _apply_inverse_model(self.grids.layers["static"], obs, free_prev, hit_prev,
+                             self._table_1, self._static)
+
+    def update_dynamic_map(self, obs: Observation, free_prev: np.ndarray,
+                           hit_prev: np.ndarray) -> None:
+        """Eq. 13 with Table 2 as the inverse sensor model."""
+        if self._table_2 is not None and self._keep_dynamic:
+            _apply_inverse_model(self.grids.layers["dynamic"], obs, free_prev, hit_prev,
+                                 self._table_2, self._dynamic)
+
+
+def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,
+                         hit_prev: np.ndarray, table: np.ndarray, model: InverseModel) -> None:
+    """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
+    to the model's range."""
+    flat = layer.reshape(-1)
+    _grid.add_clamped(flat, obs.free, free_prev, table[:, 0], model.clamp_min,
+                        model.clamp_max)
+    _grid.add_clamped(flat, obs.hit, hit_prev, table[:, 1], model.clamp_min,
+                        model.clamp_max)
