@@ -44,7 +44,7 @@ class MatchConfig:
     """False: the EKF predicts from wheel odometry alone."""
     max_range_m: float = 20.0
     """Readings beyond this are not matched."""
-    subsample: int = 2
+    subsample: int = 1
     """Use every n-th beam of the current scan."""
     iterations: int = 12
     max_correspondence_m: float = 0.5
