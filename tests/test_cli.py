@@ -114,8 +114,19 @@ def test_bad_config_exit_1(cli, tmp_path):
 
 
 def test_usage_errors_exit_2(cli, tmp_path):
-    assert cli("process", tmp_path / "missing.log").exit_code == 2
     assert cli("process", SAMPLE, "--resolution", "fine").exit_code == 2
+
+
+@pytest.mark.parametrize("command", ["process", "info"])
+def test_missing_log_is_bad_input_exit_1(cli, tmp_path, command):
+    """Bad input is exit 1 with one line naming the file and the real reason, not a usage
+    error; nothing is written."""
+    r = cli(command, tmp_path / "missing.log", *(["-o", tmp_path / "o"] if command == "process"
+                                                  else []))
+    assert r.exit_code == 1
+    assert r.stderr.strip().splitlines() == [
+        f"dynslam: error: {tmp_path / 'missing.log'}: cannot open: No such file or directory"]
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_help_teaches_with_examples(cli):
