@@ -83,8 +83,8 @@ def main() -> None:
               help="Field of view of old FLASER records (degrees) instead of CARMEN's rule.")
 @click.option("--resolution", type=float, metavar="M",
               help="Grid cell size in metres [default: 0.05].")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False,
-              path_type=Path), help="TOML file with algorithm parameters (see README).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path),
+              help="TOML file with algorithm parameters (see README).")
 @click.option("--localization", type=click.Choice(["ekf", "odometry"]),
               help="ekf: corner EKF-SLAM with scan-matched motion (default); odometry: the "
                    "log's odometry alone (paper Fig. 3a ablation).")
@@ -202,7 +202,7 @@ def _report_warnings(name: str, stats: Any) -> None:
 @click.argument("logs", nargs=-1)
 @click.option("-o", "--output", "outroot", type=click.Path(file_okay=False, path_type=Path),
               required=True, help="Folder that gets one output folder per log.")
-@click.option("--manifest", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--manifest", type=click.Path(path_type=Path),
               help="CSV (log,config,truth,relations) or TOML ([[log]] path=...) list of logs.")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=os.cpu_count() or 1,
               show_default=True, help="Local worker processes.")
@@ -210,7 +210,7 @@ def _report_warnings(name: str, stats: Any) -> None:
               help="Run on this Dask distributed scheduler (pip install 'dynslam[dask]'); "
                    "OUTROOT must be storage the workers share.")
 @click.option("--force", is_flag=True, help="Redo logs whose output is already complete.")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False),
+@click.option("--config", "config_file", type=click.Path(),
               help="TOML parameters for logs the manifest gives none.")
 @click.option("--resolution", type=float, metavar="M", help="Grid cell size in metres.")
 @click.option("--localization", type=click.Choice(["ekf", "odometry"]))
@@ -406,10 +406,10 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
 
 
 @main.command()
-@click.argument("target", type=click.Path(exists=True, path_type=Path))
-@click.option("--truth", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.argument("target", type=click.Path(path_type=Path))
+@click.option("--truth", type=click.Path(path_type=Path),
               help="truth.json from 'dynslam simulate' (TARGET is an output folder).")
-@click.option("--relations", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--relations", type=click.Path(path_type=Path),
               help="Kümmerle et al. relations file (TARGET is a folder or a .tum file).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: bool) -> None:
@@ -441,6 +441,8 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
         from formats.truth import read_truth
         from formats.tum import read_tum
 
+        if not target.exists():
+            raise InputError(str(target), "no such output folder or trajectory file")
         folder = target if target.is_dir() else None
         tum = folder / "trajectory.tum" if folder else target
         report: dict[str, Any] = {"target": str(target)}

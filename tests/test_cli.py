@@ -129,6 +129,23 @@ def test_missing_log_is_bad_input_exit_1(cli, tmp_path, command):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("args", [
+    ["process", SAMPLE, "--config", "{missing}"],
+    ["batch", SAMPLE, "-o", "{out}", "--config", "{missing}"],
+    ["batch", "--manifest", "{missing}", "-o", "{out}"],
+    ["evaluate", "{missing}", "--relations", "{missing}"],
+    ["evaluate", "{out}", "--truth", "{missing}"],
+])
+def test_missing_input_files_are_bad_input_exit_1(cli, tmp_path, args):
+    missing, out = tmp_path / "missing.toml", tmp_path / "out"
+    out.mkdir()
+    r = cli(*[str(a).format(missing=missing, out=out) for a in args])
+    assert r.exit_code == 1, r.output
+    (line,) = r.stderr.strip().splitlines()
+    assert line.startswith("dynslam: error: ") and (str(missing) in line or str(out) in line)
+    assert "Traceback" not in r.output
+
+
 def test_help_teaches_with_examples(cli):
     r = cli("process", "--help")
     assert r.exit_code == 0 and "Examples:" in r.stdout and "--resolution" in r.stdout
