@@ -72,7 +72,8 @@ def main() -> None:
 @click.argument("log", type=click.Path(allow_dash=True))  # missing: exit 1, from the reader
 @click.option("-o", "--output", type=click.Path(path_type=Path),
               help="Output folder [default: ./<log stem>_dynslam].")
-@click.option("--force", is_flag=True, help="Replace an existing output folder.")
+@click.option("--force", is_flag=True,
+              help="Replace an existing output folder (only one dynslam wrote).")
 @click.option("--format", "format_name", metavar="NAME",
               help="Log format instead of detecting it: carmen, player, ros, mcap.")
 @click.option("--laser", default="front", show_default=True, metavar="WHICH",
@@ -143,7 +144,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         from formats.outdir import check_target
 
         config = load_config(config_file, overrides)
-        check_target(target, force)
+        check_target(target, force, log)
         options = ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
                                 fov_deg=config.laser.fov_deg)
         summary = _process(log, target, force, format_name, options, config, quiet,
@@ -387,7 +388,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
     def work() -> None:
         from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world
         from dynslam_cli.simulate import simulate as run_simulation
-        from formats.outdir import atomic_output_dir
+        from formats.outdir import atomic_output_dir, is_simulation
         from formats.simlogs import write_simulated
         from formats.truth import write_truth
 
@@ -396,7 +397,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         steps, truth = run_simulation(build_world(world, seed, walkers), duration, rate, seed,
                                       laser, noise)
         name = f"{world}{LOG_NAMES[log_format]}"
-        with atomic_output_dir(output, force) as tmp:
+        with atomic_output_dir(output, force, ours=is_simulation) as tmp:
             n = write_simulated(log_format, tmp / name, steps, laser, record, world)
             write_truth(tmp / "truth.json", truth)
         click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations → {output}", err=True)

@@ -48,7 +48,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
 
     start = time.perf_counter()
     source, entry, reader = open_log(log, options, format_name)
-    with atomic_output_dir(target, force) as tmp:
+    with atomic_output_dir(target, force, log) as tmp:
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
                      if snapshot_every else None)
         ticks = array("d")

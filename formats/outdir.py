@@ -10,7 +10,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -27,18 +27,56 @@ OUTPUT_FILES = ("static.pgm", "static.yaml", "dynamic.pgm", "dynamic.yaml", "map
                 "landmarks.csv", "trajectory.tum", "summary.json")
 
 
-def check_target(target: Path, force: bool) -> None:
-    """Refuse an existing output folder unless ``force``."""
-    if target.exists() and not force:
+def check_target(target: Path, force: bool, log: str | None = None,
+                 ours: Callable[[Path], bool] | None = None) -> None:
+    """Refuse an output folder that would hurt the user: an existing one unless ``force``,
+    and even then only dynslam's own (``ours``, by default: it holds dynslam's
+    summary.json); never the current folder or one that holds it, the root, or a folder that
+    holds the input log."""
+    where = target.resolve()
+    here = Path.cwd().resolve()
+    if where == here or where in here.parents or where == Path(where.anchor):
+        raise OutputError(f"{target}: will not write over the current folder or one that "
+                          "holds it; name a new folder with -o")
+    if log is not None and log != "-" and where in Path(log).resolve().parents:
+        raise OutputError(f"{target}: holds the input log {log}; name another folder with -o")
+    if not target.exists():
+        return
+    if not force:
         raise OutputError(f"{target}: output folder exists; use --force to replace it")
-    if target.exists() and not target.is_dir():
+    if not target.is_dir():
         raise OutputError(f"{target}: exists and is not a folder")
+    if not (ours or is_dynslam_output)(target):
+        raise OutputError(f"{target}: not a folder dynslam wrote; --force replaces only "
+                          "dynslam's own output")
+
+
+def is_dynslam_output(folder: Path) -> bool:
+    """Whether ``folder`` holds a summary.json that dynslam wrote."""
+    summary = _json(folder / "summary.json")
+    tool = summary.get("tool") if isinstance(summary, dict) else None
+    return isinstance(tool, dict) and tool.get("name") == "dynslam"
+
+
+def is_simulation(folder: Path) -> bool:
+    """Whether ``folder`` holds a truth.json that ``dynslam simulate`` wrote."""
+    truth = _json(folder / "truth.json")
+    return isinstance(truth, dict) and {"world", "walls", "poses", "hits"} <= truth.keys()
+
+
+def _json(path: Path) -> object:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
 
 
 @contextmanager
-def atomic_output_dir(target: Path, force: bool) -> Iterator[Path]:
-    """Yield a temporary folder; on success it replaces ``target``, on failure it vanishes."""
-    check_target(target, force)
+def atomic_output_dir(target: Path, force: bool, log: str | None = None,
+                      ours: Callable[[Path], bool] | None = None) -> Iterator[Path]:
+    """Yield a temporary folder; on success it replaces ``target``, on failure it vanishes.
+    ``log`` (the input) and ``ours`` as for :func:`check_target`."""
+    check_target(target, force, log, ours)
     parent = target.absolute().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -50,7 +88,7 @@ def atomic_output_dir(target: Path, force: bool) -> Iterator[Path]:
         raise OutputError(f"{target}: cannot create output folder: {e.strerror}") from None
     try:
         yield tmp
-        check_target(target, force)
+        check_target(target, force, log, ours)
         if target.exists():
             trash = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
             os.replace(target, trash / target.name)

@@ -49,12 +49,12 @@ def test_same_input_gives_byte_identical_outputs(cli, tmp_path):
 
 def test_existing_output_refused_unless_force(cli, tmp_path):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "keep.txt").write_text("mine")
+    assert cli("process", SAMPLE, "-o", out, "-q").exit_code == 0
+    (out / "note.txt").write_text("mine")
     r = cli("process", SAMPLE, "-o", out)
     assert r.exit_code == 1
     assert "exists; use --force" in r.stderr
-    assert (out / "keep.txt").exists()
+    assert (out / "note.txt").exists()
     assert cli("process", SAMPLE, "-o", out, "--force", "-q").exit_code == 0
     contract_ok(out)
 
@@ -144,6 +144,36 @@ def test_missing_input_files_are_bad_input_exit_1(cli, tmp_path, args):
     (line,) = r.stderr.strip().splitlines()
     assert line.startswith("dynslam: error: ") and (str(missing) in line or str(out) in line)
     assert "Traceback" not in r.output
+
+
+def test_force_replaces_only_dynslam_output(cli, tmp_path):
+    """--force never deletes a folder dynslam did not write."""
+    mine = tmp_path / "notmine"
+    mine.mkdir()
+    (mine / "precious.txt").write_text("keep me")
+    r = cli("process", SAMPLE, "-o", mine, "--force")
+    assert r.exit_code == 1 and "not a folder dynslam wrote" in r.stderr
+    assert (mine / "precious.txt").read_text() == "keep me"
+    out = tmp_path / "out"
+    assert cli("process", SAMPLE, "-o", out).exit_code == 0
+    assert cli("process", SAMPLE, "-o", out, "--force").exit_code == 0  # its own: replaced
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notmine", "out"]  # no leftovers
+
+
+def test_refuses_the_current_folder_and_the_input_s_folder(cli, tmp_path, monkeypatch):
+    work, data = tmp_path / "work", tmp_path / "data"
+    work.mkdir()
+    data.mkdir()
+    log = data / "hall.log"
+    log.write_bytes(SAMPLE.read_bytes())
+    monkeypatch.chdir(work)
+    for target in (".", "..", "/"):
+        r = cli("process", log, "-o", target, "--force")
+        assert r.exit_code == 1 and "current folder" in r.stderr, target
+    r = cli("process", log, "-o", data, "--force")
+    assert r.exit_code == 1 and "holds the input log" in r.stderr
+    assert [p.name for p in data.iterdir()] == ["hall.log"]
+    assert list(work.iterdir()) == []
 
 
 def test_help_teaches_with_examples(cli):
