@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import gzip
+import hashlib
 import json
 import subprocess
 import sys
@@ -30,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dynslam_cli.evaluate import align_se2  # noqa: E402
+from dynslam_cli.evaluate import aligned_rmse  # noqa: E402
 from dynslam_cli.geometry import compose, relative  # noqa: E402
 from dynslam_cli.simulate import OdometryNoise, noisy_increment  # noqa: E402
 from dynslam_cli.types import Pose2D  # noqa: E402
@@ -101,8 +102,7 @@ def ate(est: np.ndarray, ref: np.ndarray) -> float:
     """ATE RMSE (m) of positions matched in order, after SE(2) alignment."""
     if len(est) != len(ref):
         raise ValueError(f"{len(est)} poses against {len(ref)} truth poses")
-    aligned, _ = align_se2(est, ref)
-    return float(np.sqrt(np.mean(np.sum((aligned - ref) ** 2, axis=1))))
+    return aligned_rmse(est, ref)
 
 
 def prepared(name: str, level: str, seed: int) -> Path:
@@ -112,7 +112,8 @@ def prepared(name: str, level: str, seed: int) -> Path:
     if noise is None:
         return src
     CACHE.mkdir(parents=True, exist_ok=True)
-    dst = CACHE / f"{name}-{level}-seed{seed}.log"
+    model = hashlib.sha1(repr(noise).encode()).hexdigest()[:8]  # a changed level: a new file
+    dst = CACHE / f"{name}-{level}-{model}-seed{seed}.log"
     if not dst.exists():
         drift_log(src, dst, noise, seed + sum(map(ord, name)))
     return dst

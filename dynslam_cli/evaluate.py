@@ -52,8 +52,13 @@ def ate_rmse(est: np.ndarray, ref: np.ndarray, max_dt: float = 1e-3) -> float:
     i, j = match_stamps(est, ref, max_dt)
     if len(i) < 2:
         return math.nan
-    aligned, _ = align_se2(est[i, 1:3], ref[j, 1:3])
-    return float(np.sqrt(np.mean(np.sum((aligned - ref[j, 1:3]) ** 2, axis=1))))
+    return aligned_rmse(est[i, 1:3], ref[j, 1:3])
+
+
+def aligned_rmse(est: np.ndarray, ref: np.ndarray) -> float:
+    """RMSE (m) of positions est (N×2) against ref (N×2), row by row, after SE(2) alignment."""
+    aligned, _ = align_se2(est, ref)
+    return float(np.sqrt(np.mean(np.sum((aligned - ref) ** 2, axis=1))))
 
 
 # -- geometry of the truth ------------------------------------------------------------------

@@ -309,8 +309,7 @@ class CarmenReader:
                                   "laser{laser}maxrange")
         if param is None or param <= 0:
             return CARMEN_DEFAULT_MAX_RANGE
-        with np.errstate(invalid="ignore"):
-            top = float(np.nanmax(ranges, initial=0.0, where=np.isfinite(ranges)))
+        top = float(np.max(ranges, initial=0.0, where=np.isfinite(ranges)))
         if top > param * CONTRADICTED_MAX_RANGE and top <= CARMEN_DEFAULT_MAX_RANGE * 1.05:
             if self._ceiling == 0.0:
                 self.stats.warn(f"readings beyond the PARAM max range {param:g} m: the "

@@ -35,7 +35,7 @@ def check_target(target: Path, force: bool, log: str | None = None,
     holds the input log."""
     where = target.resolve()
     here = Path.cwd().resolve()
-    if where == here or where in here.parents or where == Path(where.anchor):
+    if where == here or where in here.parents:  # (the root holds every folder)
         raise OutputError(f"{target}: will not write over the current folder or one that "
                           "holds it; name a new folder with -o")
     if log is not None and log != "-" and where in Path(log).resolve().parents:

@@ -189,12 +189,13 @@ class ScanMatcher:
         wheel = relative(self._last_odom, scan.odom)
         self._last_odom = scan.odom
         guess = compose(self._pose, wheel)
+        pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
         cov = None
         if reference is None:
             pose, source = guess, "odometry"
         else:
-            pose, source, cov = self._match(scan, reference, guess, wheel)
+            pose, source, cov = self._match(scan, pts, reference, guess, wheel)
         inc = relative(self._pose, pose)
         if cov is not None:
             cov = increment_covariance(cov, self._pose)
@@ -202,7 +203,7 @@ class ScanMatcher:
         self._last_increment = inc
         key = self._key_pose
         if key is None or self._moved_far(relative(key, pose)):
-            self._map.add(pose, scan_points(scan, cfg.max_range_m))
+            self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m))
             self._key_pose = pose
         return inc, source, cov
 
@@ -219,21 +220,21 @@ class ScanMatcher:
         st = max(st * cfg.prior_scale, cfg.prior_floor_m)
         return st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg))
 
-    def _match(self, scan: Scan, reference: tuple[PointIndex, np.ndarray], guess: Pose2D,
-               wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
-        """The matched pose (matcher frame), its source and its covariance."""
-        pts = scan_points(scan, self.cfg.max_range_m, self.cfg.subsample)
+    def _match(self, scan: Scan, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
+               guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
+        """The matched pose (matcher frame) of the scan's points, its source and its
+        covariance."""
         sigma = self._prior_sigma(scan, wheel)
         ref, normals = reference
-        match: IcpResult | None = icp(ref, normals, pts, guess, self.cfg, sigma)
-        source = "matched"
-        if not self._good(match, pts, guess, sigma):
-            match, source = None, "fallback"
-            if scan.has_odometry:  # odometry glitches (a doubled turn)
-                match, source = self._recover(reference, pts, guess, wheel, sigma), "recovered"
-        if match is None:
-            return guess, "fallback", None
-        return match.pose, source, fused_covariance(match.information, sigma)
+        match = icp(ref, normals, pts, guess, self.cfg, sigma)
+        if self._good(match, pts, guess, sigma):
+            return match.pose, "matched", fused_covariance(match.information, sigma)
+        if scan.has_odometry:  # odometry glitches (a doubled turn)
+            recovered = self._recover(reference, pts, guess, wheel, sigma)
+            if recovered is not None:
+                return (recovered.pose, "recovered",
+                        fused_covariance(recovered.information, sigma))
+        return guess, "fallback", None
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
               sigma: Sequence[float]) -> bool:
