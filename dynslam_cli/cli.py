@@ -111,10 +111,12 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
     \b
     Writes into the output folder (atomically: all or nothing):
-      static.pgm/.yaml    static map S (map_server, mode: scale)
-      dynamic.pgm/.yaml   dynamic map D (same size and origin)
+      static.pgm/.yaml    static map S (map_server/nav2, trinary: free,
+                          unknown, occupied as map_saver writes them)
+      static_prob.png/.yaml  S's probabilities (scale mode, unknown transparent)
+      dynamic.pgm/.yaml   dynamic map D (trinary, same size and origin)
       map.png             picture of S ∪ D with the trajectory
-      landmarks.csv       id,x,y,kind,class,observations
+      landmarks.csv       id,x,y,kind,class,observations,cov_xx,cov_xy,cov_yy
       trajectory.tum      one robot pose per scan (TUM, for evo)
       summary.json        counts, skips, timing, effective configuration
     The output folder's path is printed on stdout.
@@ -389,7 +391,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world
         from dynslam_cli.simulate import simulate as run_simulation
         from formats.outdir import atomic_output_dir, is_simulation
-        from formats.simlogs import write_simulated
+        from formats.simlogs import stamp_offset, write_simulated
         from formats.truth import write_truth
 
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
@@ -399,6 +401,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         name = f"{world}{LOG_NAMES[log_format]}"
         with atomic_output_dir(output, force, ours=is_simulation) as tmp:
             n = write_simulated(log_format, tmp / name, steps, laser, record, world)
+            truth.stamp_offset_s = stamp_offset(log_format)
             write_truth(tmp / "truth.json", truth)
         click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations → {output}", err=True)
         click.echo(str(output / name))

@@ -27,3 +27,7 @@ class ConfigError(DynslamError):
 
 class OutputError(DynslamError):
     """The output cannot be written where asked (exists, not writable, ...)."""
+
+
+class ScoreError(DynslamError):
+    """An evaluation that cannot give a number: too little of the run matched the reference."""

@@ -15,12 +15,14 @@ from typing import Any
 import numpy as np
 
 from dynslam_cli.config import Config
+from dynslam_cli.errors import ScoreError
 from dynslam_cli.geometry import wrap_angles
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
 from dynslam_cli.types import Scan
 
 UNKNOWN_BAND = 0.01  # |p − 0.5| within this is "never observed" (PGM quantisation included)
+MIN_MATCHED = 0.5  # a score needs at least this share of the poses (relations) it could match
 
 
 # -- trajectory -----------------------------------------------------------------------------
@@ -46,12 +48,19 @@ def match_stamps(est: np.ndarray, ref: np.ndarray, max_dt: float) -> tuple[np.nd
     return np.flatnonzero(ok), order[k[ok]]
 
 
+def _span(rows: np.ndarray) -> str:
+    return f"{rows[:, 0].min():.3f}–{rows[:, 0].max():.3f} s" if len(rows) else "empty"
+
+
 def ate_rmse(est: np.ndarray, ref: np.ndarray, max_dt: float = 1e-3) -> float:
     """Absolute trajectory error (RMSE of positions, m) after SE(2) alignment; rows are
-    (stamp, x, y, theta)."""
-    i, j = match_stamps(est, ref, max_dt)
-    if len(i) < 2:
-        return math.nan
+    (stamp, x, y, theta). Raises :class:`ScoreError` when fewer than two poses, or fewer than
+    ``MIN_MATCHED`` of ``est``'s, have a reference pose at their stamp."""
+    i, j = match_stamps(est, ref, max_dt) if len(est) and len(ref) else (np.zeros(0, int),) * 2
+    if len(i) < max(2, MIN_MATCHED * len(est)):
+        raise ScoreError(f"only {len(i)} of {len(est)} poses have a reference pose within "
+                         f"{max_dt:g} s (poses {_span(est)}, reference {_span(ref)}): not the "
+                         "same run, or its stamps are shifted")
     return aligned_rmse(est[i, 1:3], ref[j, 1:3])
 
 
@@ -202,6 +211,8 @@ def score_run(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarra
     objects = truth["objects"]
     ref = np.asarray(truth["poses"], dtype=float)
     odom = np.asarray(truth["odometry"], dtype=float)
+    trajectory = np.array(trajectory, dtype=float)  # the log's stamps → the truth's clock
+    trajectory[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
     res = static.resolution
     tol = max(tolerance_m, res)
     occ_s = static.prob > thresholds.occupied
@@ -415,6 +426,8 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
     inv(P1)·P2 minus the reference, component-wise (angle wrapped), gives the translational
     error sqrt(dx² + dy²) and the rotational error |dθ|.
     """
+    if not len(trajectory) or not len(relations):
+        raise ScoreError(f"nothing to score: {len(trajectory)} poses, {len(relations)} relations")
     i1, j1 = match_stamps(relations[:, [0]], trajectory, max_dt)
     i2, j2 = match_stamps(relations[:, [1]], trajectory, max_dt)
     have1 = np.full(len(relations), -1)
@@ -422,6 +435,12 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
     have2 = np.full(len(relations), -1)
     have2[i2] = j2
     ok = (have1 >= 0) & (have2 >= 0)
+    t0, t1 = trajectory[:, 0].min() - max_dt, trajectory[:, 0].max() + max_dt
+    in_span = int(((relations[:, :2] >= t0) & (relations[:, :2] <= t1)).all(axis=1).sum())
+    if not ok.any() or ok.sum() < MIN_MATCHED * in_span:
+        raise ScoreError(f"only {int(ok.sum())} of {len(relations)} relations ({in_span} within "
+                         f"the trajectory's {_span(trajectory)}) have both poses within "
+                         f"{max_dt:g} s: not the same run, or its stamps are shifted")
     p1, p2 = trajectory[have1[ok]], trajectory[have2[ok]]
     rel = relations[ok]
     c, s = np.cos(p1[:, 3]), np.sin(p1[:, 3])

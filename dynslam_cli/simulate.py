@@ -266,6 +266,7 @@ class Truth:
     objects: dict[str, dict] = field(default_factory=dict)
     events: list[dict] = field(default_factory=list)
     hits: list[list[str]] = field(default_factory=list)
+    stamp_offset_s: float = 0.0  # the log's stamps are the truth's times plus this
 
 
 def _world_geometry(world: World, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,

@@ -1,13 +1,21 @@
-"""Occupancy maps as map_server / nav2 files: ``NAME.pgm`` (8-bit P5) + ``NAME.yaml``.
+"""Occupancy maps as map_server / nav2 files.
 
-``mode: scale``, ``negate: 0``: a pixel value v means occupancy p = (255 − v)/255, first
-image row = top (largest y), ``origin`` = pose of the lower-left pixel. The thresholds written
-are the ones dynslam classifies cells with (Free below ``free_thresh``, Occupied above
-``occupied_thresh``), so a map_server loader agrees with the tool.
+``NAME.pgm`` + ``NAME.yaml`` are what ``map_saver`` writes in its default ``trinary`` mode: 8-bit
+P5, ``negate: 0``, occupied 0, unknown 205, free 254, first image row = top (largest y),
+``origin`` = pose of the lower-left pixel. Each cell's class is dynslam's (Free below the
+configured free threshold, Occupied above the occupied one); the YAML's thresholds (0.1 /
+0.9) sort the three pixel values back into those classes under the loading rules of nav2's
+``map_io`` and ROS 1's ``map_server`` alike, so a planner sees unknown space as unknown.
+
+``NAME_prob.png`` + ``NAME_prob.yaml`` keep the probabilities: ``mode: scale``, grey v means
+p = (255 − v)/255, and alpha 0 (transparent) where the cell is Unknown — the only way scale
+mode marks a cell unknown. Free and Occupied pixels are nudged (by at most one grey level) to
+the right side of the thresholds, so both files load to the same classes.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,30 +25,74 @@ from PIL import Image
 from dynslam_cli.errors import InputError
 from dynslam_cli.mapping.grid import OccupancyMap
 
+FREE_PIXEL, UNKNOWN_PIXEL, OCCUPIED_PIXEL = 254, 205, 0
+TRINARY_FREE_THRESH, TRINARY_OCCUPIED_THRESH = 0.1, 0.9  # 254 → 0.004, 205 → 0.196, 0 → 1
+
 
 def to_pixels(prob: np.ndarray) -> np.ndarray:
-    """Probabilities (row 0 = lowest y) → PGM pixel values (row 0 = top)."""
+    """Probabilities (row 0 = lowest y) → grey values p = (255 − v)/255 (row 0 = top)."""
     return np.rint(255.0 * (1.0 - np.clip(prob, 0.0, 1.0))).astype(np.uint8)[::-1]
 
 
 def from_pixels(pixels: np.ndarray) -> np.ndarray:
-    """PGM pixel values (row 0 = top) → probabilities (row 0 = lowest y)."""
+    """Grey values (row 0 = top) → probabilities (row 0 = lowest y)."""
     return ((255.0 - pixels.astype(np.float64)) / 255.0)[::-1]
 
 
+def classes(prob: np.ndarray, free_thresh: float, occupied_thresh: float
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of Free and Occupied cells (the rest is Unknown), image rows (row 0 = top)."""
+    flipped = prob[::-1]
+    return flipped < free_thresh, flipped > occupied_thresh
+
+
+def trinary_pixels(prob: np.ndarray, free_thresh: float, occupied_thresh: float) -> np.ndarray:
+    """The map_saver picture: 254 Free, 205 Unknown, 0 Occupied (row 0 = top)."""
+    free, occupied = classes(prob, free_thresh, occupied_thresh)
+    pixels = np.full(free.shape, UNKNOWN_PIXEL, dtype=np.uint8)
+    pixels[free] = FREE_PIXEL
+    pixels[occupied] = OCCUPIED_PIXEL
+    return pixels
+
+
+def scale_pixels(prob: np.ndarray, free_thresh: float, occupied_thresh: float) -> np.ndarray:
+    """Grey + alpha (row 0 = top): grey the probability, transparent where Unknown; grey of
+    known cells kept strictly on their side of the thresholds after rounding."""
+    free, occupied = classes(prob, free_thresh, occupied_thresh)
+    grey = to_pixels(prob)
+    lightest_occupied = math.ceil(255.0 * (1.0 - occupied_thresh)) - 1
+    darkest_free = math.floor(255.0 * (1.0 - free_thresh)) + 1
+    grey[occupied] = np.minimum(grey[occupied], lightest_occupied)
+    grey[free] = np.maximum(grey[free], darkest_free)
+    alpha = np.where(free | occupied, 255, 0).astype(np.uint8)
+    return np.dstack([grey, alpha])
+
+
+def _yaml(image: str, mode: str, grid: OccupancyMap, free: float, occupied: float) -> str:
+    return (f"image: {image}\n"
+            f"mode: {mode}\n"
+            f"resolution: {grid.resolution:.6f}\n"
+            f"origin: [{grid.origin_x:.6f}, {grid.origin_y:.6f}, 0.000000]\n"
+            f"negate: 0\n"
+            f"occupied_thresh: {occupied:g}\n"
+            f"free_thresh: {free:g}\n")
+
+
 def write_map(folder: Path, name: str, grid: OccupancyMap, free_thresh: float,
-              occupied_thresh: float) -> None:
-    """Write ``folder/name.pgm`` and ``folder/name.yaml``."""
-    Image.fromarray(to_pixels(grid.prob), mode="L").save(folder / f"{name}.pgm")
+              occupied_thresh: float, probabilities: bool = False) -> None:
+    """Write ``folder/name.pgm`` + ``name.yaml`` (trinary), and with ``probabilities`` also
+    ``name_prob.png`` + ``name_prob.yaml`` (scale, alpha = unknown)."""
+    Image.fromarray(trinary_pixels(grid.prob, free_thresh, occupied_thresh), mode="L").save(
+        folder / f"{name}.pgm")
     (folder / f"{name}.yaml").write_text(
-        f"image: {name}.pgm\n"
-        f"mode: scale\n"
-        f"resolution: {grid.resolution:.6f}\n"
-        f"origin: [{grid.origin_x:.6f}, {grid.origin_y:.6f}, 0.000000]\n"
-        f"negate: 0\n"
-        f"occupied_thresh: {occupied_thresh:g}\n"
-        f"free_thresh: {free_thresh:g}\n",
+        _yaml(f"{name}.pgm", "trinary", grid, TRINARY_FREE_THRESH, TRINARY_OCCUPIED_THRESH),
         encoding="utf-8")
+    if probabilities:
+        Image.fromarray(scale_pixels(grid.prob, free_thresh, occupied_thresh), mode="LA").save(
+            folder / f"{name}_prob.png", optimize=False, compress_level=1)
+        (folder / f"{name}_prob.yaml").write_text(
+            _yaml(f"{name}_prob.png", "scale", grid, free_thresh, occupied_thresh),
+            encoding="utf-8")
 
 
 @dataclass(frozen=True)
@@ -53,7 +105,8 @@ class MapFile:
 
 
 def read_map(yaml_path: Path) -> MapFile:
-    """Read a map written by :func:`write_map` (flat ``key: value`` YAML, scale mode)."""
+    """Read a map written by :func:`write_map` (flat ``key: value`` YAML, trinary or scale
+    mode; in a trinary map every cell's probability is its class's pixel value)."""
     yaml_path = Path(yaml_path)
     try:
         text = yaml_path.read_text(encoding="utf-8")
@@ -74,10 +127,13 @@ def read_map(yaml_path: Path) -> MapFile:
         free, occ = float(meta["free_thresh"]), float(meta["occupied_thresh"])
         image = yaml_path.parent / meta["image"]
         negate = int(meta.get("negate", "0"))
+        mode = meta.get("mode", "trinary")
     except (KeyError, ValueError) as e:
         raise InputError(str(yaml_path), f"missing or malformed map field: {e}") from None
     if negate:
         raise InputError(str(yaml_path), "negate: 1 maps are not supported")
+    if mode not in ("trinary", "scale"):
+        raise InputError(str(yaml_path), f"mode: {mode} maps are not supported")
     try:
         with Image.open(image) as im:
             pixels = np.asarray(im.convert("L"))

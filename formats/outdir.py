@@ -23,8 +23,9 @@ from formats.mapfile import write_map
 from formats.picture import write_picture
 from formats.tum import write_tum
 
-OUTPUT_FILES = ("static.pgm", "static.yaml", "dynamic.pgm", "dynamic.yaml", "map.png",
-                "landmarks.csv", "trajectory.tum", "summary.json")
+OUTPUT_FILES = ("static.pgm", "static.yaml", "static_prob.png", "static_prob.yaml",
+                "dynamic.pgm", "dynamic.yaml", "map.png", "landmarks.csv", "trajectory.tum",
+                "summary.json")
 
 
 def check_target(target: Path, force: bool, log: str | None = None,
@@ -105,7 +106,8 @@ def write_results(folder: Path, result: SlamResult, config: Config,
                   summary: dict[str, Any]) -> None:
     """Write every file of the output contract into ``folder``."""
     m = config.map
-    write_map(folder, "static", result.static, m.free_threshold, m.occupied_threshold)
+    write_map(folder, "static", result.static, m.free_threshold, m.occupied_threshold,
+              probabilities=True)
     write_map(folder, "dynamic", result.dynamic, m.free_threshold, m.occupied_threshold)
     write_picture(folder / "map.png", result.static, result.dynamic, result.trajectory,
                   result.landmarks, m.occupied_threshold)

@@ -19,6 +19,12 @@ from dynslam_cli.simulate import LaserModel, SimStep
 from formats.carmen import format_flaser, format_odom, format_param, format_robotlaser1
 
 EPOCH_S = 1_700_000_000  # simulated time 0 as a plausible ROS time
+TEXT_FORMATS = ("carmen", "player")  # stamped from 0, like the truth
+
+
+def stamp_offset(fmt: str) -> float:
+    """Seconds the log's stamps in format ``fmt`` are ahead of the truth's times."""
+    return 0.0 if fmt in TEXT_FORMATS else float(EPOCH_S)
 
 
 def write_carmen(out: TextIO, steps: Iterable[SimStep], laser: LaserModel, record: str,

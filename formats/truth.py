@@ -27,6 +27,7 @@ def write_truth(path: Path, truth: Truth) -> None:
         "objects": truth.objects,
         "events": truth.events,
         "hits": truth.hits,
+        "stamp_offset_s": truth.stamp_offset_s,
     }
     path.write_text(json.dumps(data, separators=(",", ":")) + "\n", encoding="utf-8")
 

@@ -160,3 +160,33 @@ def test_evaluate_cli_table_json_and_errors(cli, tmp_path):
     rel.write_text("1 2 3\n")
     r = cli("evaluate", out / "trajectory.tum", "--relations", rel)
     assert r.exit_code == 1 and "x.relations:1: a relation has 8 fields" in r.stderr
+    far = tmp_path / "far.relations"  # another run's relations: nothing matches
+    far.write_text("1e9 1.000000001e9 1 0 0 0 0 0\n")
+    r = cli("evaluate", out, "--relations", far)
+    assert r.exit_code == 1 and r.stdout == ""
+    assert r.stderr.count("\n") == 1 and "only 0 of 1 relations" in r.stderr
+
+
+def test_ate_of_trajectories_with_no_common_stamps_is_an_error():
+    from dynslam_cli.errors import ScoreError
+
+    t = np.arange(10.0)
+    ref = np.column_stack((t, t, 0 * t, 0 * t))
+    later = np.array([1000.0, 0, 0, 0])
+    with pytest.raises(ScoreError, match="only 0 of 10 poses"):
+        ate_rmse(ref + later, ref)
+    with pytest.raises(ScoreError, match="only 4 of 10 poses"):  # under half: too little
+        ate_rmse(np.vstack((ref[:4], ref[4:] + later)), ref)
+
+
+def test_bag_stamps_are_aligned_with_the_truth(cli, tmp_path):
+    """ROS bags carry stamps from a plausible epoch; truth.json says by how much."""
+    sim = tmp_path / "s"
+    assert cli("simulate", "crowd", "-o", sim, "--duration", "20", "--format", "mcap"
+               ).exit_code == 0
+    assert json.loads((sim / "truth.json").read_text())["stamp_offset_s"] > 1e9
+    assert cli("process", sim / "crowd.mcap", "-o", tmp_path / "o", "-q").exit_code == 0
+    r = cli("evaluate", tmp_path / "o", "--truth", sim / "truth.json", "--json")
+    assert r.exit_code == 0
+    ate = json.loads(r.stdout)["truth"]["trajectory"]["ate_rmse_m"]
+    assert 0 <= ate < 0.1

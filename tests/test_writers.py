@@ -6,6 +6,7 @@ import io
 
 import numpy as np
 import pytest
+from PIL import Image
 from ruamel.yaml import YAML
 
 from dynslam_cli.errors import InputError
@@ -16,28 +17,63 @@ from formats.mapfile import read_map, write_map
 from formats.tum import read_tum, write_tum
 
 
-def test_map_round_trip_and_nav2_conventions(tmp_path):
-    prob = np.full((4, 6), 0.5)
+def nav2_load(yaml_path):
+    """An OccupancyGrid's data (-1 unknown, 0-100) as nav2's map_io loadMapFromFile makes it:
+    channels averaged (alpha too, inverted, in trinary mode), occ = 1 - shade, thresholds
+    strict; scale mode calls a pixel unknown only when it is not opaque. Row 0 = lowest y."""
+    meta = YAML(typ="safe").load(yaml_path.read_text())
+    with Image.open(yaml_path.parent / meta["image"]) as im:
+        rgba = np.asarray(im.convert("RGBA"), dtype=np.float64)
+        matte = im.mode in ("LA", "RGBA", "PA")
+    channels = [rgba[..., 0], rgba[..., 1], rgba[..., 2]]
+    if meta["mode"] == "trinary" and matte:
+        channels.append(rgba[..., 3])  # map_io's MaxRGB - alphaQuantum, i.e. the opacity
+    shade = sum(channels) / len(channels) / 255.0
+    occ = shade if meta["negate"] else 1.0 - shade
+    free_t, occ_t = meta["free_thresh"], meta["occupied_thresh"]
+    if meta["mode"] == "trinary":
+        cells = np.where(occ_t < occ, 100, np.where(occ < free_t, 0, -1))
+    else:
+        scaled = np.rint((occ - free_t) / (occ_t - free_t) * 100.0)
+        cells = np.where(occ_t < occ, 100, np.where(occ < free_t, 0, scaled))
+        cells = np.where(rgba[..., 3] < 255, -1, cells)
+    return cells.astype(np.int8)[::-1]
+
+
+def test_maps_load_in_nav2_with_unknown_as_unknown(tmp_path):
+    rng = np.random.default_rng(3)
+    prob = rng.uniform(0.0, 1.0, (30, 40))
+    prob[0, :3] = [0.0999, 0.1, 0.9001]  # right at the thresholds
     prob[0, 0] = 1.0  # lowest y, lowest x: must be the image's bottom-left pixel
-    prob[3, 5] = 0.0  # highest y, highest x: top-right
     grid = OccupancyMap(prob=prob, resolution=0.1, origin_x=-2.0, origin_y=3.0)
-    write_map(tmp_path, "static", grid, 0.1, 0.9)
+    write_map(tmp_path, "static", grid, 0.1, 0.9, probabilities=True)
+    expected = np.where(prob > 0.9, 100, np.where(prob < 0.1, 0, -1))
+    assert (expected == -1).mean() > 0.7
+    for name in ("static.yaml", "static_prob.yaml"):
+        np.testing.assert_array_equal(nav2_load(tmp_path / name), expected, err_msg=name)
 
     meta = YAML(typ="safe").load((tmp_path / "static.yaml").read_text())
-    assert meta == {"image": "static.pgm", "mode": "scale", "resolution": 0.1,
+    assert meta == {"image": "static.pgm", "mode": "trinary", "resolution": 0.1,
                     "origin": [-2.0, 3.0, 0.0], "negate": 0, "occupied_thresh": 0.9,
                     "free_thresh": 0.1}
     raw = (tmp_path / "static.pgm").read_bytes()
     assert raw.startswith(b"P5")
-    pixels = np.frombuffer(raw[-24:], np.uint8).reshape(4, 6)
-    assert pixels[3, 0] == 0  # bottom-left pixel: occupied, p = (255 - 0) / 255 = 1
-    assert pixels[0, 5] == 255  # top-right: free
-    assert pixels[1, 1] in (127, 128)
+    pixels = np.frombuffer(raw[-30 * 40:], np.uint8).reshape(30, 40)
+    assert pixels[29, 0] == 0  # bottom-left pixel: occupied
+    assert set(np.unique(pixels)) == {0, 205, 254}  # what map_saver writes
 
-    back = read_map(tmp_path / "static.yaml")
+
+def test_probability_map_round_trip(tmp_path):
+    prob = np.linspace(0.0, 1.0, 24).reshape(4, 6)
+    grid = OccupancyMap(prob=prob, resolution=0.1, origin_x=-2.0, origin_y=3.0)
+    write_map(tmp_path, "static", grid, 0.1, 0.9, probabilities=True)
+    back = read_map(tmp_path / "static_prob.yaml")
     assert back.free_thresh == 0.1 and back.occupied_thresh == 0.9
     assert back.grid.origin_x == -2.0 and back.grid.resolution == 0.1
-    np.testing.assert_allclose(back.grid.prob, prob, atol=0.5 / 255)
+    np.testing.assert_allclose(back.grid.prob, prob, atol=1.5 / 255)
+    trinary = read_map(tmp_path / "static.yaml").grid.prob  # the classes survive
+    np.testing.assert_array_equal(trinary < 0.1, prob < 0.1)
+    np.testing.assert_array_equal(trinary > 0.9, prob > 0.9)
 
 
 def test_tum_round_trip_and_layout():
