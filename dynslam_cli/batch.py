@@ -142,16 +142,37 @@ def run_job(job: Job) -> dict[str, Any]:
         summary, _ = process_log(job.log, Path(job.output), job.force,
                                  ReaderOptions(**job.reader), config,
                                  read_ahead=job.read_ahead)
-        dur, wall = summary["data_duration_s"], summary["wall_time_s"]
-        row.update(format=summary["input"]["format"], scans=summary["scans_processed"],
-                   data_duration_s=round(dur, 3), wall_time_s=wall,
-                   x_real_time=round(dur / wall, 1) if wall else None)
+        row.update(_figures(summary))
         row.update(_scores(job))
     except (DynslamError, ConfigError) as e:
         row.update(status="failed", error=str(e))
     except Exception as e:  # a bug on one log must not stop the batch; it is reported
         row.update(status="failed", error=f"internal error: {type(e).__name__}: {e}")
     row.setdefault("wall_time_s", round(time.perf_counter() - start, 3))
+    return row
+
+
+def _figures(summary: dict[str, Any]) -> dict[str, Any]:
+    """A log's row figures from its summary.json."""
+    dur, wall = summary["data_duration_s"], summary["wall_time_s"]
+    return {"format": summary["input"]["format"], "scans": summary["scans_processed"],
+            "data_duration_s": round(dur, 3), "wall_time_s": wall,
+            "x_real_time": round(dur / wall, 1) if wall else None}
+
+
+def earlier_row(job: Job) -> dict[str, Any]:
+    """The row of a log whose output an earlier run completed: status ``skipped``, its
+    figures from its summary.json, its scores computed again from its files."""
+    row: dict[str, Any] = {"log": job.log, "output": job.output, "status": "skipped",
+                           "error": ""}
+    try:
+        summary = json.loads((Path(job.output) / "summary.json").read_text(encoding="utf-8"))
+        row.update(_figures(summary))
+        row.update(_scores(job))
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        row["error"] = f"earlier output unreadable: {e}"
+    except DynslamError as e:
+        row["error"] = str(e)
     return row
 
 
@@ -193,13 +214,13 @@ def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
     jobs, skipped = [], []
     for row, name in zip(rows, names, strict=True):
         out = outroot / name
+        job = Job(str(row["log"]), str(out), row.get("config") or default_config,
+                  row.get("truth"), row.get("relations"), overrides, force or out.exists(),
+                  reader)
         if complete(out) and not force:
-            skipped.append({"log": row["log"], "output": str(out), "status": "skipped",
-                            "error": ""})
-            continue
-        jobs.append(Job(str(row["log"]), str(out), row.get("config") or default_config,
-                        row.get("truth"), row.get("relations"), overrides,
-                        force or out.exists(), reader))
+            skipped.append(earlier_row(job))
+        else:
+            jobs.append(job)
     return jobs, skipped
 
 
@@ -240,9 +261,12 @@ def write_summary(outroot: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def _atomic_write(path: Path, text: str) -> None:
+    from formats.outdir import with_umask
+
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(text)
+    os.chmod(tmp, with_umask(0o666))
     os.replace(tmp, path)
 
 

@@ -65,6 +65,14 @@ def is_simulation(folder: Path) -> bool:
     return isinstance(truth, dict) and {"world", "walls", "poses", "hits"} <= truth.keys()
 
 
+def with_umask(mode: int) -> int:
+    """``mode`` as the user's umask lets an ordinary new file or folder have it (mkstemp and
+    mkdtemp make theirs private)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return mode & ~umask
+
+
 def _json(path: Path) -> object:
     try:
         return json.loads(path.read_text(encoding="utf-8"))
@@ -82,9 +90,7 @@ def atomic_output_dir(target: Path, force: bool, log: str | None = None,
     try:
         parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
-        umask = os.umask(0)
-        os.umask(umask)
-        tmp.chmod(0o777 & ~umask)  # mkdtemp makes it private; the result is an ordinary folder
+        tmp.chmod(with_umask(0o777))
     except OSError as e:
         raise OutputError(f"{target}: cannot create output folder: {e.strerror}") from None
     try:

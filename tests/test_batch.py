@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -60,14 +61,31 @@ def test_local_batch_resumes_and_reports_failures(logs, cli, tmp_path):
     assert float(rows["a/hall.log"]["x_real_time"]) > 0
     assert json.loads((out / "batch.json").read_text())[0]["log"]
 
-    # rerun: nothing to do for the complete ones (the bad one is tried again)
+    # rerun: nothing to do for the complete ones (the bad one is tried again), and their
+    # figures stay in the summary
+    first = read_rows(out)
     r = cli("batch", logs / "a", logs / "b", "-o", out, "--jobs", "2")
     assert "0 done, 4 skipped, 1 failed" in r.stderr
+    again = read_rows(out)
+    assert again["a/hall.log"]["status"] == "skipped"
+    for key in ("format", "scans", "data_duration_s", "wall_time_s", "x_real_time"):
+        assert again["a/hall.log"][key] == first["a/hall.log"][key] != "", key
     # delete one output: only that one is redone
     shutil.rmtree(out / "arena")
     r = cli("batch", logs / "a", logs / "b", "-o", out, "--jobs", "1")
     assert "1 done, 3 skipped, 1 failed" in r.stderr
     assert read_rows(out)["a/arena.log"]["status"] == "done"
+
+
+def test_batch_summary_follows_the_umask(logs, cli, tmp_path):
+    old = os.umask(0o022)
+    try:
+        assert cli("batch", logs / "a" / "hall.log", "-o", tmp_path / "out", "-q").exit_code == 0
+    finally:
+        os.umask(old)
+    for name in ("batch.csv", "batch.json"):
+        assert (tmp_path / "out" / name).stat().st_mode & 0o777 == 0o644, name
+    assert (tmp_path / "out" / "hall").stat().st_mode & 0o777 == 0o755
 
 
 def test_all_complete_says_nothing_to_do(logs, cli, tmp_path):
@@ -90,6 +108,8 @@ def test_manifest_with_truth_scores(logs, cli, tmp_path):
     assert r.exit_code == 0, r.stderr
     row = read_rows(out)["a/hall.log"]
     assert 0 <= float(row["ate_rmse_m"]) < float(row["odometry_ate_rmse_m"])
+    assert cli("batch", "--manifest", manifest, "-o", out, "-q").exit_code == 0  # resumed:
+    assert read_rows(out)["a/hall.log"]["ate_rmse_m"] == row["ate_rmse_m"]  # scores kept
     r = cli("batch", "--manifest", toml, "-o", out / "t", "-q")
     assert r.exit_code == 0, r.stderr
     assert "resolution: 0.100000" in (out / "t/arena/static.yaml").read_text()
