@@ -30,9 +30,9 @@ from dynslam_cli.simulate import (  # noqa: E402
     build_world,
     simulate,
 )
-from formats import ReaderOptions, open_log  # noqa: E402
-from formats.simlogs import write_carmen  # noqa: E402
-from formats.truth import write_truth  # noqa: E402
+from dynslam_formats import ReaderOptions, open_log  # noqa: E402
+from dynslam_formats.simlogs import write_carmen  # noqa: E402
+from dynslam_formats.truth import write_truth  # noqa: E402
 
 MODES = {
     "S/D": lambda c: c,

@@ -27,9 +27,9 @@ from dynslam_cli.simulate import (
     build_world,
     simulate,
 )
-from formats import ReaderOptions, open_log
-from formats.simlogs import write_carmen
-from formats.truth import write_truth
+from dynslam_formats import ReaderOptions, open_log
+from dynslam_formats.simlogs import write_carmen
+from dynslam_formats.truth import write_truth
 
 HALF = 0.3
 

@@ -35,7 +35,7 @@ from dynslam_cli.evaluate import aligned_rmse  # noqa: E402
 from dynslam_cli.geometry import compose, relative  # noqa: E402
 from dynslam_cli.simulate import OdometryNoise, noisy_increment  # noqa: E402
 from dynslam_cli.types import Pose2D  # noqa: E402
-from formats.tum import read_tum  # noqa: E402
+from dynslam_formats.tum import read_tum  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "datasets" / "carmen" / "radish-corrected"
 CACHE = ROOT / "bench" / "cache" / "radish"

@@ -130,7 +130,7 @@ def complete(output: Path) -> bool:
 def run_job(job: Job) -> dict[str, Any]:
     """Process one log (and score it); never raises for the log's own problems."""
     from dynslam_cli.config import load_config
-    from formats import ReaderOptions
+    from dynslam_formats import ReaderOptions
 
     row: dict[str, Any] = {"log": job.log, "output": job.output, "status": "done",
                            "error": ""}
@@ -181,10 +181,10 @@ def _scores(job: Job) -> dict[str, Any]:
     folder = Path(job.output)
     if job.truth:
         from dynslam_cli.evaluate import MapThresholds, score_run
-        from formats.landmarks import read_landmarks
-        from formats.mapfile import read_map
-        from formats.truth import read_truth
-        from formats.tum import read_tum
+        from dynslam_formats.landmarks import read_landmarks
+        from dynslam_formats.mapfile import read_map
+        from dynslam_formats.truth import read_truth
+        from dynslam_formats.tum import read_tum
 
         s, d = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
         with open(folder / "landmarks.csv", encoding="utf-8") as f:
@@ -197,8 +197,8 @@ def _scores(job: Job) -> dict[str, Any]:
         out["scores"] = r
     if job.relations:
         from dynslam_cli.evaluate import relation_errors
-        from formats.relations import read_relations
-        from formats.tum import read_tum
+        from dynslam_formats.relations import read_relations
+        from dynslam_formats.tum import read_tum
 
         r = relation_errors(read_tum(folder / "trajectory.tum"), read_relations(job.relations))
         out["relation_translational_m"] = r["translational_m"]["mean"]
@@ -261,7 +261,7 @@ def write_summary(outroot: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def _atomic_write(path: Path, text: str) -> None:
-    from formats.outdir import with_umask
+    from dynslam_formats.outdir import with_umask
 
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     with os.fdopen(fd, "w", encoding="utf-8") as f:

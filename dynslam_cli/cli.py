@@ -142,8 +142,8 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
     def work() -> None:
         from dynslam_cli.config import load_config
-        from formats import ReaderOptions
-        from formats.outdir import check_target
+        from dynslam_formats import ReaderOptions
+        from dynslam_formats.outdir import check_target
 
         config = load_config(config_file, overrides)
         check_target(target, force, log)
@@ -331,7 +331,7 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
     def work() -> None:
         import json
 
-        from formats import ReaderOptions, describe_log
+        from dynslam_formats import ReaderOptions, describe_log
 
         d = describe_log(log, ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
                                             first_topic=True), format_name)
@@ -390,9 +390,9 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
     def work() -> None:
         from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world
         from dynslam_cli.simulate import simulate as run_simulation
-        from formats.outdir import atomic_output_dir, is_simulation
-        from formats.simlogs import stamp_offset, write_simulated
-        from formats.truth import write_truth
+        from dynslam_formats.outdir import atomic_output_dir, is_simulation
+        from dynslam_formats.simlogs import stamp_offset, write_simulated
+        from dynslam_formats.truth import write_truth
 
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
         noise = OdometryNoise().scaled(odometry_noise)
@@ -439,11 +439,11 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
 
         from dynslam_cli.errors import InputError
         from dynslam_cli.evaluate import MapThresholds, relation_errors, score_run
-        from formats.landmarks import read_landmarks
-        from formats.mapfile import read_map
-        from formats.relations import read_relations
-        from formats.truth import read_truth
-        from formats.tum import read_tum
+        from dynslam_formats.landmarks import read_landmarks
+        from dynslam_formats.mapfile import read_map
+        from dynslam_formats.relations import read_relations
+        from dynslam_formats.truth import read_truth
+        from dynslam_formats.tum import read_tum
 
         if not target.exists():
             raise InputError(str(target), "no such output folder or trajectory file")

@@ -42,9 +42,9 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
     ``on_progress(bytes_done, bytes_total)`` is called every few scans. ``read_ahead``: read
     and measure the scans in a second process (on Linux; see dynslam_cli.localization.frontend)."""
-    from formats import open_log
-    from formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
-    from formats.picture import SnapshotWriter
+    from dynslam_formats import open_log
+    from dynslam_formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
+    from dynslam_formats.picture import SnapshotWriter
 
     start = time.perf_counter()
     source, entry, reader = open_log(log, options, format_name)

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from dynslam_cli.errors import InputError
-from formats.base import LogReader, ReaderOptions, ReadStats, Source
+from dynslam_formats.base import LogReader, ReaderOptions, ReadStats, Source
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
            "all_readers", "describe_log", "open_log"]
@@ -46,17 +46,17 @@ def _lazy(module: str, name: str) -> Callable[..., Any]:
 
 READERS: tuple[ReaderEntry, ...] = (
     ReaderEntry("carmen", "Carmen / Radish / Freiburg log (FLASER, ROBOTLASER, RAWLASER...)",
-                (".log", ".clf", ".gfs.log", ".gfs"), _lazy("formats.carmen", "sniff"),
-                _lazy("formats.carmen", "CarmenReader")),
+                (".log", ".clf", ".gfs.log", ".gfs"), _lazy("dynslam_formats.carmen", "sniff"),
+                _lazy("dynslam_formats.carmen", "CarmenReader")),
     ReaderEntry("player", "Player writelog text log (file versions 0.0, 0.2, 0.3)",
-                (".playerlog",), _lazy("formats.player", "sniff"),
-                _lazy("formats.player", "PlayerReader")),
+                (".playerlog",), _lazy("dynslam_formats.player", "sniff"),
+                _lazy("dynslam_formats.player", "PlayerReader")),
     ReaderEntry("ros", "ROS1 .bag, ROS2 bag folder or .db3 (rosbags)",
-                (".bag", ".db3"), _lazy("formats.ros", "sniff"),
-                _lazy("formats.ros", "RosbagsReader"), folder_marker="metadata.yaml"),
+                (".bag", ".db3"), _lazy("dynslam_formats.ros", "sniff"),
+                _lazy("dynslam_formats.ros", "RosbagsReader"), folder_marker="metadata.yaml"),
     ReaderEntry("mcap", "MCAP file: ros2 profile via rosbags, others (ROS1 in MCAP) via mcap",
-                (".mcap",), _lazy("formats.mcap_plain", "sniff"),
-                _lazy("formats.mcap_plain", "McapReader")),
+                (".mcap",), _lazy("dynslam_formats.mcap_plain", "sniff"),
+                _lazy("dynslam_formats.mcap_plain", "McapReader")),
 )
 
 

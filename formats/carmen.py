@@ -53,7 +53,7 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, relative
 from dynslam_cli.types import Pose2D, Scan
-from formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
+from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
 
 RECORD_NAMES = ("PARAM", "SYNC", "ODOM", "TRUEPOS", "FLASER", "RLASER", "LASER3", "LASER4",
                 "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4", "ROBOTLASER1",

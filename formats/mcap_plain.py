@@ -9,8 +9,8 @@ from typing import Any, ClassVar
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Scan
-from formats.base import ReaderOptions, ReadStats, Source
-from formats.ros import MCAP_MAGIC, TF_TYPES, RosMessages, choose_topics
+from dynslam_formats.base import ReaderOptions, ReadStats, Source
+from dynslam_formats.ros import MCAP_MAGIC, TF_TYPES, RosMessages, choose_topics
 
 
 def sniff(head: bytes) -> bool:
@@ -41,7 +41,7 @@ class McapReader:
         except Exception as e:
             raise InputError(source.name, f"not a readable MCAP file: {e}") from None
         if profile == "ros2":
-            from formats.ros import RosbagsReader
+            from dynslam_formats.ros import RosbagsReader
 
             self._ros2 = RosbagsReader(source, options)
             self.stats = self._ros2.stats

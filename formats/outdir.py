@@ -18,10 +18,10 @@ from typing import Any
 from dynslam_cli.config import Config
 from dynslam_cli.errors import OutputError
 from dynslam_cli.pipeline import SlamResult
-from formats.landmarks import write_landmarks
-from formats.mapfile import write_map
-from formats.picture import write_picture
-from formats.tum import write_tum
+from dynslam_formats.landmarks import write_landmarks
+from dynslam_formats.mapfile import write_map
+from dynslam_formats.picture import write_picture
+from dynslam_formats.tum import write_tum
 
 OUTPUT_FILES = ("static.pgm", "static.yaml", "static_prob.png", "static_prob.yaml",
                 "dynamic.pgm", "dynamic.yaml", "map.png", "landmarks.csv", "trajectory.tum",

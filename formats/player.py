@@ -27,7 +27,7 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
-from formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
+from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
 
 
 def sniff(head: bytes) -> bool:

@@ -28,7 +28,7 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
-from formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source
+from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"

@@ -16,7 +16,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from dynslam_cli.simulate import LaserModel, SimStep
-from formats.carmen import format_flaser, format_odom, format_param, format_robotlaser1
+from dynslam_formats.carmen import format_flaser, format_odom, format_param, format_robotlaser1
 
 EPOCH_S = 1_700_000_000  # simulated time 0 as a plausible ROS time
 TEXT_FORMATS = ("carmen", "player")  # stamped from 0, like the truth

@@ -14,7 +14,7 @@ from typing import TextIO
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from formats.base import read_text_lines
+from dynslam_formats.base import read_text_lines
 
 
 def write_tum(out: TextIO, trajectory: np.ndarray) -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from formats.outdir import OUTPUT_FILES
+from dynslam_formats.outdir import OUTPUT_FILES
 
 
 @pytest.fixture(scope="module")

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from dynslam_cli.errors import InputError
-from formats import ReaderOptions, open_log
-from formats.carmen import carmen_beam_angles
+from dynslam_formats import ReaderOptions, open_log
+from dynslam_formats.carmen import carmen_beam_angles
 from tests.conftest import flaser
 
 

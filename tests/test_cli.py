@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from formats.outdir import OUTPUT_FILES
-from formats.tum import read_tum
+from dynslam_formats.outdir import OUTPUT_FILES
+from dynslam_formats.tum import read_tum
 from tests.conftest import SAMPLES, flaser
 
 SAMPLE = SAMPLES / "hall" / "hall.log"
@@ -70,12 +70,12 @@ def test_failed_run_leaves_nothing_behind(cli, tmp_path):
 
 
 def test_failure_while_writing_removes_partial_folder(cli, tmp_path, monkeypatch):
-    import formats.outdir
+    import dynslam_formats.outdir
 
     def broken(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(formats.outdir, "write_tum", broken)
+    monkeypatch.setattr(dynslam_formats.outdir, "write_tum", broken)
     with pytest.raises(OSError):
         cli("process", SAMPLE, "-o", tmp_path / "out", "-q")
     assert list(tmp_path.iterdir()) == []
@@ -222,3 +222,12 @@ def test_truncated_fields_log_exit_1_one_line(cli, datasets, tmp_path):
     assert r.exit_code == 1
     assert len(r.stderr.strip().splitlines()) == 1
     assert "zaragoza-laserazosSM3-truncated-fields.log:1: FLASER" in r.stderr
+
+
+def test_a_formats_py_in_the_users_folder_does_not_shadow_ours(tmp_path):
+    """The readers install as dynslam_formats: a user's own formats.py cannot collide."""
+    (tmp_path / "formats.py").write_text("raise ImportError('the user formats.py')\n")
+    r = subprocess.run([sys.executable, "-m", "dynslam_cli", "process", str(SAMPLE), "-o",
+                        "out", "-q"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "out" / "summary.json").is_file()

@@ -118,9 +118,9 @@ def test_no_dynamic_is_an_ordinary_grid():
 # -- the built-in worlds, judged apart from localization (odometry = truth) ---------------
 def _simulated(world: str, tmp_path, noise: float, duration: float = 600.0, rate: float = 10.0):
     from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world, simulate
-    from formats import ReaderOptions, open_log
-    from formats.simlogs import write_carmen
-    from formats.truth import write_truth
+    from dynslam_formats import ReaderOptions, open_log
+    from dynslam_formats.simlogs import write_carmen
+    from dynslam_formats.truth import write_truth
 
     steps, truth = simulate(build_world(world), duration, rate, 0,
                             noise=OdometryNoise().scaled(noise))

@@ -18,7 +18,7 @@ from dynslam_cli.evaluate import (
 )
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.simulate import build_world, simulate
-from formats.relations import read_relations
+from dynslam_formats.relations import read_relations
 
 TH = MapThresholds(0.1, 0.9)
 
@@ -91,8 +91,8 @@ def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
     from dynslam_cli.config import Config
     from dynslam_cli.pipeline import run
     from dynslam_cli.simulate import LaserModel
-    from formats import ReaderOptions, open_log
-    from formats.simlogs import write_carmen
+    from dynslam_formats import ReaderOptions, open_log
+    from dynslam_formats.simlogs import write_carmen
 
     steps, truth_obj = simulate(build_world("arena"), 400, 5.0, 0)
     log = tmp_path / "arena.log"
@@ -133,7 +133,7 @@ def test_relation_metric_on_hand_computed_case():
 
 def test_mit_csail_raw_odometry_relation_error(datasets):
     """The published raw-odometry figure for MIT CSAIL is 1.68 m."""
-    from formats import ReaderOptions, open_log
+    from dynslam_formats import ReaderOptions, open_log
 
     source, _, reader = open_log(str(datasets / "carmen/mit-csail.clf"), ReaderOptions())
     traj = np.array([(s.stamp, s.odom.x, s.odom.y, s.odom.theta) for s in reader.scans()])

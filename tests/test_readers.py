@@ -8,8 +8,8 @@ from importlib.metadata import EntryPoint
 import numpy as np
 import pytest
 
-from formats.mapfile import read_map
-from formats.tum import read_tum
+from dynslam_formats.mapfile import read_map
+from dynslam_formats.tum import read_tum
 
 FORMATS = ["carmen", "player", "rosbag1", "rosbag2", "rosbag2-mcap", "mcap"]
 
@@ -119,12 +119,12 @@ def test_truncated_bag_is_a_clear_error(simulated, cli, tmp_path, fmt):
 def test_reader_plugin_from_entry_point(cli, tmp_path, monkeypatch):
     import importlib.metadata
 
-    import formats
+    import dynslam_formats
 
-    ep = EntryPoint("linescan", "tests.plugin_example:ENTRY", formats.PLUGIN_GROUP)
+    ep = EntryPoint("linescan", "tests.plugin_example:ENTRY", dynslam_formats.PLUGIN_GROUP)
     monkeypatch.setattr(importlib.metadata, "entry_points",
                         lambda group: [ep] if group == ep.group else [])
-    formats.all_readers.cache_clear()
+    dynslam_formats.all_readers.cache_clear()
     try:
         log = tmp_path / "run.linescan"
         rows = [f"{t} {0.1 * t} 0 0 8 -1.5 0.1 " + " ".join(["3.0"] * 31) for t in range(5)]
@@ -135,4 +135,4 @@ def test_reader_plugin_from_entry_point(cli, tmp_path, monkeypatch):
             "linescan"
         assert len(read_tum(tmp_path / "o/trajectory.tum")) == 5
     finally:
-        formats.all_readers.cache_clear()
+        dynslam_formats.all_readers.cache_clear()

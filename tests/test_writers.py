@@ -12,9 +12,9 @@ from ruamel.yaml import YAML
 from dynslam_cli.errors import InputError
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import Landmark
-from formats.landmarks import HEADER, read_landmarks, write_landmarks
-from formats.mapfile import read_map, write_map
-from formats.tum import read_tum, write_tum
+from dynslam_formats.landmarks import HEADER, read_landmarks, write_landmarks
+from dynslam_formats.mapfile import read_map, write_map
+from dynslam_formats.tum import read_tum, write_tum
 
 
 def nav2_load(yaml_path):

@@ -35,7 +35,7 @@ from dynslam_cli.localization.scanmatch import ScanMatcher
 from dynslam_cli.types import Pose2D, Scan
 
 if TYPE_CHECKING:
-    from formats.base import LogReader, ReadStats, Source
+    from dynslam_formats.base import LogReader, ReadStats, Source
 
 BATCH = 16  # scans per message from the child
 PIPE_BYTES = 1 << 20
