@@ -43,6 +43,9 @@ class Job:
     overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
     force: bool = False
     reader: dict[str, Any] = field(default_factory=dict)
+    """ReaderOptions fields (the command line's reader options and part of the log)."""
+    format_name: str | None = None
+    snapshots: float | None = None
     read_ahead: bool = True
     """Read and scan-match in a second process (see dynslam_cli.localization.frontend); off when the
     batch already runs one worker per core."""
@@ -139,9 +142,9 @@ def run_job(job: Job) -> dict[str, Any]:
         from dynslam_cli.job import process_log
 
         config = load_config(Path(job.config) if job.config else None, job.overrides)
-        summary, _ = process_log(job.log, Path(job.output), job.force,
-                                 ReaderOptions(**job.reader), config,
-                                 read_ahead=job.read_ahead)
+        options = ReaderOptions(**job.reader, fov_deg=config.laser.fov_deg)
+        summary, _ = process_log(job.log, Path(job.output), job.force, options, config,
+                                 job.format_name, job.snapshots, read_ahead=job.read_ahead)
         row.update(_figures(summary))
         row.update(_scores(job))
     except (DynslamError, ConfigError) as e:
@@ -208,7 +211,8 @@ def _scores(job: Job) -> dict[str, Any]:
 
 def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
          overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
-         default_config: str | None) -> tuple[list[Job], list[dict[str, Any]]]:
+         default_config: str | None, format_name: str | None = None,
+         snapshots: float | None = None) -> tuple[list[Job], list[dict[str, Any]]]:
     """Jobs to run, and rows for logs skipped because their output is complete."""
     names = output_names([str(r["log"]) for r in rows])
     jobs, skipped = [], []
@@ -216,7 +220,7 @@ def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
         out = outroot / name
         job = Job(str(row["log"]), str(out), row.get("config") or default_config,
                   row.get("truth"), row.get("relations"), overrides, force or out.exists(),
-                  reader)
+                  reader, format_name, snapshots)
         if complete(out) and not force:
             skipped.append(earlier_row(job))
         else:
@@ -274,11 +278,15 @@ def run_batch(rows: list[dict[str, str | None]], outroot: Path, force: bool,
               overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
               default_config: str | None, execute: Callable[[list[Job]],
                                                             Iterable[dict[str, Any]]],
-              on_done: Callable[[dict[str, Any]], None] | None = None
+              on_done: Callable[[dict[str, Any]], None] | None = None,
+              format_name: str | None = None, snapshots: float | None = None
               ) -> list[dict[str, Any]]:
-    """Plan, run what is missing through ``execute``, write the summary; returns all rows."""
+    """Plan, run what is missing through ``execute``, write the summary; returns all rows.
+    ``reader``: ReaderOptions fields for every log; ``format_name`` and ``snapshots`` as for
+    ``dynslam process``."""
     outroot.mkdir(parents=True, exist_ok=True)
-    jobs, results = plan(rows, outroot, force, overrides, reader, default_config)
+    jobs, results = plan(rows, outroot, force, overrides, reader, default_config, format_name,
+                         snapshots)
     for r in results:
         if on_done:
             on_done(r)

@@ -53,6 +53,77 @@ def _guarded(work: Callable[[], Any]) -> Any:
         sys.exit(1)
 
 
+def _options(*decorators: Callable[[Any], Any]) -> Callable[[Any], Any]:
+    """One decorator applying click options in the order listed (shared by commands)."""
+    def apply(f: Any) -> Any:
+        for decorate in reversed(decorators):
+            f = decorate(f)
+        return f
+    return apply
+
+
+reader_options = _options(  # how to read a log: process, batch (every log), info
+    click.option("--format", "format_name", metavar="NAME",
+                 help="Log format instead of detecting it: carmen, player, ros, mcap."),
+    click.option("--laser", default="front", show_default=True, metavar="WHICH",
+                 help="Which laser: Carmen front|rear|3|4; Player a device index."),
+    click.option("--topic", metavar="TOPIC", help="ROS: the sensor_msgs/LaserScan topic."),
+    click.option("--odom-topic", metavar="TOPIC", help="ROS: the nav_msgs/Odometry topic."),
+    click.option("--flaser-fov", type=float, metavar="DEG",
+                 help="Field of view of old FLASER records (degrees) instead of CARMEN's "
+                      "rule."),
+)
+
+run_options = _options(  # what to compute and which part of the log: process, batch
+    click.option("--resolution", type=click.FloatRange(min=0, min_open=True), metavar="M",
+                 help="Grid cell size in metres [default: 0.05]."),
+    click.option("--config", "config_file", type=click.Path(path_type=Path),
+                 help="TOML file with algorithm parameters (print them all: dynslam config); "
+                      "in batch, for logs the manifest gives none."),
+    click.option("--localization", type=click.Choice(["ekf", "odometry"]),
+                 help="ekf: corner EKF-SLAM with scan-matched motion (default); odometry: the "
+                      "log's odometry alone (paper Fig. 3a ablation)."),
+    click.option("--no-dynamic", is_flag=True,
+                 help="One ordinary occupancy grid instead of S and D (paper Fig. 3b "
+                      "ablation)."),
+    click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
+                 help="Also write the S ∪ D picture every SECONDS of log time into "
+                      "snapshots/ and snapshots/evolution.gif."),
+    click.option("--start", "start_s", type=click.FloatRange(min=0), metavar="SECONDS",
+                 help="Leave out the scans of the first SECONDS (log time after the first "
+                      "scan)."),
+    click.option("--end", "end_s", type=click.FloatRange(min=0), metavar="SECONDS",
+                 help="Stop SECONDS of log time after the first scan."),
+    click.option("--max-scans", type=click.IntRange(min=1), metavar="N",
+                 help="Stop after N scans (a quick look at a long log)."),
+)
+
+
+def _overrides(resolution: float | None, flaser_fov: float | None, no_dynamic: bool,
+               localization: str | None) -> dict[str, dict[str, Any]]:
+    """Configuration overrides from the command-line options."""
+    overrides: dict[str, dict[str, Any]] = {}
+    if resolution is not None:
+        overrides["map"] = {"resolution_m": resolution}
+    if flaser_fov is not None:
+        overrides["laser"] = {"fov_deg": flaser_fov}
+    if no_dynamic:
+        overrides["dynamic"] = {"enabled": False}
+    if localization is not None:
+        overrides["ekf"] = {"localization": localization}
+    return overrides
+
+
+def _reader(laser: str, topic: str | None, odom_topic: str | None, start_s: float | None,
+            end_s: float | None, max_scans: int | None) -> dict[str, Any]:
+    """ReaderOptions fields from the command-line options (a dict: it travels to workers)."""
+    if start_s is not None and end_s is not None and end_s <= start_s:
+        raise click.BadParameter(f"--end {end_s:g} is not after --start {start_s:g}",
+                                 param_hint="--end")
+    return {"laser": laser, "topic": topic, "odom_topic": odom_topic, "start_s": start_s,
+            "end_s": end_s, "max_scans": max_scans}
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="dynslam")
 def main() -> None:
@@ -74,26 +145,8 @@ def main() -> None:
               help="Output folder [default: ./<log stem>_dynslam].")
 @click.option("--force", is_flag=True,
               help="Replace an existing output folder (only one dynslam wrote).")
-@click.option("--format", "format_name", metavar="NAME",
-              help="Log format instead of detecting it: carmen, player, ros, mcap.")
-@click.option("--laser", default="front", show_default=True, metavar="WHICH",
-              help="Which laser: Carmen front|rear|3|4; Player a device index.")
-@click.option("--topic", metavar="TOPIC", help="ROS: the sensor_msgs/LaserScan topic.")
-@click.option("--odom-topic", metavar="TOPIC", help="ROS: the nav_msgs/Odometry topic.")
-@click.option("--flaser-fov", type=float, metavar="DEG",
-              help="Field of view of old FLASER records (degrees) instead of CARMEN's rule.")
-@click.option("--resolution", type=float, metavar="M",
-              help="Grid cell size in metres [default: 0.05].")
-@click.option("--config", "config_file", type=click.Path(path_type=Path),
-              help="TOML file with algorithm parameters (see README).")
-@click.option("--localization", type=click.Choice(["ekf", "odometry"]),
-              help="ekf: corner EKF-SLAM with scan-matched motion (default); odometry: the "
-                   "log's odometry alone (paper Fig. 3a ablation).")
-@click.option("--no-dynamic", is_flag=True,
-              help="One ordinary occupancy grid instead of S and D (paper Fig. 3b ablation).")
-@click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
-              help="Also write the S ∪ D picture every SECONDS of log time into snapshots/ "
-                   "and snapshots/evolution.gif.")
+@reader_options
+@run_options
 @click.option("--no-read-ahead", is_flag=True,
               help="Read the log and match scans in this process too (by default a second "
                    "process does that ahead of the filter, on another core; the results are "
@@ -103,6 +156,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
             topic: str | None, odom_topic: str | None, flaser_fov: float | None,
             resolution: float | None, config_file: Path | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
+            start_s: float | None, end_s: float | None, max_scans: int | None,
             no_read_ahead: bool, quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
@@ -128,17 +182,12 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       zcat run3.log.gz | dynslam process - -o run3 --quiet
       dynslam process robot.log --laser rear --config tuned.toml --force
       dynslam process lasers.bag --topic /left_scan
+      dynslam process long.bag --start 600 --end 900    # ten to fifteen minutes in
     """
     from dynslam_cli.job import default_output
 
     target = output if output is not None else default_output(log)
-    overrides = {"map": {"resolution_m": resolution}} if resolution is not None else {}
-    if flaser_fov is not None:
-        overrides.setdefault("laser", {})["fov_deg"] = flaser_fov
-    if no_dynamic:
-        overrides.setdefault("dynamic", {})["enabled"] = False
-    if localization is not None:
-        overrides.setdefault("ekf", {})["localization"] = localization
+    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization)
 
     def work() -> None:
         from dynslam_cli.config import load_config
@@ -147,7 +196,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
 
         config = load_config(config_file, overrides)
         check_target(target, force, log)
-        options = ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
+        options = ReaderOptions(**_reader(laser, topic, odom_topic, start_s, end_s, max_scans),
                                 fov_deg=config.laser.fov_deg)
         summary = _process(log, target, force, format_name, options, config, quiet,
                            snapshots, not no_read_ahead)
@@ -213,17 +262,15 @@ def _report_warnings(name: str, stats: Any) -> None:
               help="Run on this Dask distributed scheduler (pip install 'dynslam[dask]'); "
                    "OUTROOT must be storage the workers share.")
 @click.option("--force", is_flag=True, help="Redo logs whose output is already complete.")
-@click.option("--config", "config_file", type=click.Path(),
-              help="TOML parameters for logs the manifest gives none.")
-@click.option("--resolution", type=float, metavar="M", help="Grid cell size in metres.")
-@click.option("--localization", type=click.Choice(["ekf", "odometry"]))
-@click.option("--no-dynamic", is_flag=True, help="One ordinary grid (ablation).")
-@click.option("--topic", metavar="TOPIC", help="ROS: the LaserScan topic, for every log.")
+@reader_options
+@run_options
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or table.")
 def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int,
-          scheduler: str | None, force: bool, config_file: str | None,
-          resolution: float | None, localization: str | None, no_dynamic: bool,
-          topic: str | None, quiet: bool) -> None:
+          scheduler: str | None, force: bool, format_name: str | None, laser: str,
+          topic: str | None, odom_topic: str | None, flaser_fov: float | None,
+          resolution: float | None, config_file: Path | None, localization: str | None,
+          no_dynamic: bool, snapshots: float | None, start_s: float | None,
+          end_s: float | None, max_scans: int | None, quiet: bool) -> None:
     """Process many logs: LOGS are files, folders (searched for logs) or globs.
 
     One output folder per log under OUTROOT (the same contract as 'process'; names made
@@ -241,19 +288,14 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
     """
     if not logs and manifest is None:
         raise click.UsageError("give logs or --manifest")
-    overrides: dict[str, dict[str, Any]] = {}
-    if resolution is not None:
-        overrides["map"] = {"resolution_m": resolution}
-    if localization is not None:
-        overrides["ekf"] = {"localization": localization}
-    if no_dynamic:
-        overrides["dynamic"] = {"enabled": False}
+    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization)
+    reader = _reader(laser, topic, odom_topic, start_s, end_s, max_scans)
 
     def work() -> None:
         from dynslam_cli.batch import expand_logs, read_manifest, run_batch, run_dask, run_local
         from dynslam_cli.config import load_config
 
-        load_config(Path(config_file) if config_file else None, overrides)  # fail early
+        load_config(config_file, overrides)  # fail early
         rows = [{"log": log, "config": None, "truth": None, "relations": None}
                 for log in expand_logs(logs)]
         if manifest is not None:
@@ -263,9 +305,9 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
                    else (lambda js: run_local(js, jobs)))
         tqdm = _progress_bar()
         with tqdm(total=len(rows), unit="log", disable=quiet or None, file=sys.stderr) as bar:
-            results = run_batch(rows, outroot, force, overrides,
-                                {"topic": topic} if topic else {}, config_file, execute,
-                                lambda r: bar.update(1))
+            results = run_batch(rows, outroot, force, overrides, reader,
+                                str(config_file) if config_file else None, execute,
+                                lambda r: bar.update(1), format_name, snapshots)
         if client is not None:
             client.close()
         _batch_report(results, quiet)
@@ -309,14 +351,10 @@ def _batch_report(results: list[dict[str, Any]], quiet: bool) -> None:
 
 @main.command()
 @click.argument("log", type=click.Path(allow_dash=True))  # missing: exit 1, from the reader
-@click.option("--format", "format_name", metavar="NAME", help="Log format instead of detecting it.")
-@click.option("--laser", default="front", show_default=True, metavar="WHICH",
-              help="Which laser (Carmen front|rear|3|4; Player index).")
-@click.option("--topic", metavar="TOPIC", help="ROS: the LaserScan topic.")
-@click.option("--odom-topic", metavar="TOPIC", help="ROS: the Odometry topic.")
+@reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def info(log: str, format_name: str | None, laser: str, topic: str | None,
-         odom_topic: str | None, as_json: bool) -> None:
+         odom_topic: str | None, flaser_fov: float | None, as_json: bool) -> None:
     """Describe what LOG holds before processing it.
 
     Format, record types or topics with message counts, scans, beams, field of view, max
@@ -334,7 +372,7 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
         from dynslam_formats import ReaderOptions, describe_log
 
         d = describe_log(log, ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
-                                            first_topic=True), format_name)
+                                            first_topic=True, fov_deg=flaser_fov), format_name)
         click.echo(json.dumps(d, indent=2, sort_keys=True) if as_json else _table(d))
 
     _guarded(work)
@@ -476,7 +514,9 @@ def _table(report: dict[str, Any], indent: str = "") -> str:
     """Nested dict → aligned 'key  value' lines."""
     lines = []
     for key, value in report.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and not value:
+            lines.append(f"{indent}{key:<{max(1, 30 - len(indent))}} none")
+        elif isinstance(value, dict):
             lines.append(f"{indent}{key}")
             lines.append(_table(value, indent + "  "))
         else:

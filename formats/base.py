@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gzip
 import io
+import math
 import sys
 import zlib
 from collections import Counter, deque
@@ -34,6 +35,12 @@ class ReaderOptions:
     """ROS: take the first of several topics instead of asking (for ``dynslam info``)."""
     fov_deg: float | None = None
     """Field of view for records that carry no beam angles (old Carmen FLASER)."""
+    start_s: float | None = None
+    """Part of a log: leave out scans earlier than this, in seconds after the first scan."""
+    end_s: float | None = None
+    """... and stop after this many seconds after the first scan."""
+    max_scans: int | None = None
+    """... and after this many scans."""
 
 
 @dataclass
@@ -170,6 +177,40 @@ class LogReader(Protocol):
     stats: ReadStats
 
     def scans(self) -> Iterator[Scan]: ...
+
+
+class LogWindow:
+    """A reader's scans from ``start_s`` to ``end_s`` seconds after its first scan, at most
+    ``max_scans`` of them; reading stops at the end of the window."""
+
+    def __init__(self, reader: LogReader, options: ReaderOptions) -> None:
+        self.reader = reader
+        self.format_name = reader.format_name
+        self.stats = reader.stats
+        self.start = options.start_s if options.start_s is not None else -math.inf
+        self.end = options.end_s if options.end_s is not None else math.inf
+        self.max_scans = options.max_scans
+
+    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
+        return getattr(self.reader, name)
+
+    def scans(self) -> Iterator[Scan]:
+        first, n = None, 0
+        for scan in self.reader.scans():
+            first = scan.stamp if first is None else first
+            t = scan.stamp - first
+            if t > self.end or (self.max_scans is not None and n >= self.max_scans):
+                return
+            if t >= self.start:
+                n += 1
+                yield scan
+
+
+def windowed(reader: LogReader, options: ReaderOptions) -> LogReader:
+    """``reader`` itself, or a :class:`LogWindow` over it when the options ask for part."""
+    if options.start_s is None and options.end_s is None and options.max_scans is None:
+        return reader
+    return LogWindow(reader, options)
 
 
 class OdometryBuffer:

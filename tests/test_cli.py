@@ -231,3 +231,38 @@ def test_a_formats_py_in_the_users_folder_does_not_shadow_ours(tmp_path):
                         "out", "-q"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_part_of_a_log(cli, tmp_path):
+    r = cli("process", SAMPLE, "-o", tmp_path / "w", "--start", "10", "--end", "30", "-q")
+    assert r.exit_code == 0, r.stderr
+    traj = read_tum(tmp_path / "w/trajectory.tum")
+    assert traj[0, 0] == pytest.approx(10.0) and traj[-1, 0] == pytest.approx(30.0)
+    summary = json.loads((tmp_path / "w/summary.json").read_text())
+    assert summary["input"]["options"]["start_s"] == 10.0
+    r = cli("process", SAMPLE, "-o", tmp_path / "n", "--max-scans", "7", "-q")
+    assert len(read_tum(tmp_path / "n/trajectory.tum")) == 7
+    r = cli("process", SAMPLE, "-o", tmp_path / "x", "--start", "30", "--end", "10")
+    assert r.exit_code == 2 and "--end 10 is not after --start 30" in r.stderr
+    assert not (tmp_path / "x").exists()
+
+
+def test_batch_takes_the_reader_options(cli, tmp_path):
+    r = cli("batch", SAMPLE, "-o", tmp_path / "b", "--format", "carmen", "--laser", "front",
+            "--flaser-fov", "180", "--max-scans", "20", "--snapshots", "1", "-q")
+    assert r.exit_code == 0, r.stderr
+    assert len(read_tum(tmp_path / "b/hall/trajectory.tum")) == 20
+    assert (tmp_path / "b/hall/snapshots/evolution.gif").is_file()
+    summary = json.loads((tmp_path / "b/hall/summary.json").read_text())
+    assert summary["input"]["options"]["format"] == "carmen"
+    assert summary["config"]["laser"]["fov_deg"] == 180.0
+    r = cli("batch", SAMPLE, "-o", tmp_path / "c", "--format", "nonsense", "-q")
+    assert r.exit_code == 1 and "unknown format 'nonsense'" in r.stderr
+
+
+def test_info_says_none_instead_of_empty_headings(cli):
+    r = cli("info", SAMPLE)
+    assert r.exit_code == 0
+    lines = r.stdout.splitlines()
+    assert any(line.split() == ["skipped", "none"] for line in lines)
+    assert any(line.split() == ["warnings", "none"] for line in lines)
