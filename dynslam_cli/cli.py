@@ -378,6 +378,29 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
     _guarded(work)
 
 
+@main.command("config")
+@click.option("--config", "config_file", type=click.Path(path_type=Path),
+              help="Print this file's effective values (defaults filled in) instead.")
+def config_command(config_file: Path | None) -> None:
+    """Print every algorithm parameter as TOML, with its unit and meaning.
+
+    The output is a valid --config file: save it, keep the lines you change.
+
+    \b
+    Examples:
+      dynslam config > dynslam.toml
+      dynslam process log.clf --config dynslam.toml
+      dynslam config --config tuned.toml     # what tuned.toml amounts to
+    """
+
+    def work() -> None:
+        from dynslam_cli.config import load_config, to_toml
+
+        click.echo(to_toml(load_config(config_file)), nl=False)
+
+    _guarded(work)
+
+
 @main.command()
 @click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd", "office"]))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,

@@ -14,7 +14,11 @@ The effective configuration is written to ``summary.json`` beside the outputs.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import inspect
+import itertools
+import json
 import math
 import tomllib
 import types
@@ -205,3 +209,70 @@ def load_config(path: Path | None = None, overrides: dict[str, dict[str, Any]] |
     for section, items in (overrides or {}).items():
         values.setdefault(section, {}).update(items)
     return _build(Config, values, where).validate()
+
+
+def _field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field of a dataclass (read from its source)."""
+    docs: dict[str, str] = {}
+    body = ast.parse(inspect.getsource(cls)).body[0].body  # type: ignore[attr-defined]
+    for node, after in itertools.pairwise(body):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                and isinstance(after.value.value, str)):
+            docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)
+    return repr(value)
+
+
+def _comment(text: str, width: int = 92) -> list[str]:
+    lines, line = [], "#"
+    for word in text.split():
+        if len(line) + 1 + len(word) > width:
+            lines.append(line)
+            line = "#"
+        line += " " + word
+    return [*lines, line] if line != "#" else lines
+
+
+def _class_doc(cls: type) -> str:
+    doc = inspect.getdoc(cls) or ""
+    return "" if doc.startswith(cls.__name__ + "(") else doc.split("\n\n")[0]  # not dataclass's
+
+
+def _table_toml(name: str, table: Any) -> list[str]:
+    """One TOML table (and its nested tables after it), each key under its docstring."""
+    out = ["", *_comment(_class_doc(type(table))), f"[{name}]"]
+    docs = _field_docs(type(table))
+    nested = []
+    for f in dataclasses.fields(table):
+        value = getattr(table, f.name)
+        if dataclasses.is_dataclass(value):
+            nested.append((f"{name}.{f.name}", value, docs.get(f.name, "")))
+            continue
+        out += _comment(docs.get(f.name, ""))
+        out.append(f"# {f.name} =    (unset by default; give a value to use it)"
+                   if value is None else f"{f.name} = {_toml_value(value)}")
+    for sub, value, doc in nested:
+        lines = _table_toml(sub, value)
+        out += [lines[0], *_comment(doc), *lines[1:]]
+    return out
+
+
+def to_toml(config: Config | None = None) -> str:
+    """Every parameter as TOML, each under its meaning and unit (the field's docstring); a
+    parameter that is unset by default (None) is written commented out. ``--config``
+    accepts the result unchanged."""
+    config = config or Config()
+    out = ["# dynslam configuration: every parameter with its default, unit and meaning.",
+           "# Keep what you change (dynslam process LOG --config FILE.toml); unknown keys",
+           "# are errors. The effective values of a run are in its summary.json."]
+    for section in dataclasses.fields(config):
+        out += _table_toml(section.name, getattr(config, section.name))
+    return "\n".join(out) + "\n"

@@ -26,3 +26,24 @@ def test_bad_config_is_an_error(tmp_path, text, message):
     p.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_config(p)
+
+
+def test_dynslam_config_prints_a_config_file_that_loads_back(cli, tmp_path):
+    import tomllib
+
+    from dynslam_cli.config import Config, load_config
+
+    r = cli("config")
+    assert r.exit_code == 0
+    text = r.stdout
+    assert "# Cell edge length (metres).\nresolution_m = 0.05\n" in text
+    assert "[ekf.noise]" in text and "# max_range_m =" in text  # unset: commented out
+    assert tomllib.loads(text)["map"]["resolution_m"] == 0.05
+    path = tmp_path / "all.toml"
+    path.write_text(text)
+    assert load_config(path) == Config()  # --config accepts what it prints
+    tuned = tmp_path / "tuned.toml"
+    tuned.write_text("[map]\nresolution_m = 0.1\n[ekf.noise]\nrange_m = 0.05\n")
+    r = cli("config", "--config", tuned)
+    path.write_text(r.stdout)
+    assert load_config(path) == load_config(tuned)
