@@ -1,15 +1,18 @@
 """A picture of S ∪ D: static map in grey levels (dark = occupied, grey = unknown), dynamic
 cells in red, the trajectory in blue, landmarks as small squares (static green, dynamic
-orange)."""
+orange). ``map.png`` shows the part with walls, path or landmarks in it (plus a metre),
+upscaled by whole pixels per cell when small, with metre ticks in the map frame, a scale bar
+and a legend; the snapshots are the plain grid, one pixel per cell."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image, ImageDraw, ImageFont
 
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import Landmark
@@ -17,33 +20,142 @@ from dynslam_cli.pipeline import Landmark
 DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)
 LANDMARK_RGB = {"static": (20, 160, 60), "dynamic": (255, 140, 0)}
+PAPER_RGB = (255, 255, 255)
+INK_RGB = (0, 0, 0)
+
+MIN_PICTURE_PX = 800  # map.png is upscaled (whole pixels per cell) to at least this size
+MAX_UPSCALE = 8
+WALL_QUANTILE = 0.005
+MARGIN_M = 1.0  # map.png shows the walls, path and landmarks with this much around them
+NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 
 
 def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
-           landmarks: Sequence[Landmark], occupied_thresh: float) -> Image.Image:
-    """The S ∪ D picture, one pixel per cell, north up."""
-    grey = np.rint(255.0 * (1.0 - static.prob)).astype(np.uint8)
+           landmarks: Sequence[Landmark], occupied_thresh: float,
+           window: tuple[int, int, int, int] | None = None, scale: int = 1) -> Image.Image:
+    """The S ∪ D picture, north up: ``window`` (col0, row0, col1, row1, cells; default the
+    whole grid), ``scale`` pixels per cell; the path and landmarks drawn at that scale."""
+    rows, cols = static.prob.shape
+    c0, r0, c1, r1 = window or (0, 0, cols, rows)
+    grey = np.rint(255.0 * (1.0 - static.prob[r0:r1, c0:c1])).astype(np.uint8)
     rgb = np.repeat(grey[:, :, None], 3, axis=2)
-    rgb[dynamic.prob > occupied_thresh] = DYNAMIC_RGB
+    rgb[dynamic.prob[r0:r1, c0:c1] > occupied_thresh] = DYNAMIC_RGB
     image = Image.fromarray(np.ascontiguousarray(rgb[::-1]), mode="RGB")
+    if scale > 1:
+        image = image.resize((image.width * scale, image.height * scale), Image.NEAREST)
     draw = ImageDraw.Draw(image)
-    height, res = static.prob.shape[0], static.resolution
+    res = static.resolution
 
     def pixel(x: float, y: float) -> tuple[float, float]:
-        return (x - static.origin_x) / res, height - (y - static.origin_y) / res
+        return (((x - static.origin_x) / res - c0) * scale,
+                (r1 - (y - static.origin_y) / res) * scale)
 
     if len(trajectory) > 1:
-        draw.line([pixel(x, y) for x, y in trajectory[:, 1:3]], fill=TRAJECTORY_RGB, width=1)
+        draw.line([pixel(x, y) for x, y in trajectory[:, 1:3]], fill=TRAJECTORY_RGB,
+                  width=max(1, scale // 2))
+    half = max(1, scale)
     for lm in landmarks:
         u, v = pixel(lm.x, lm.y)
-        draw.rectangle((u - 1, v - 1, u + 1, v + 1), outline=LANDMARK_RGB[lm.cls])
+        draw.rectangle((u - half, v - half, u + half, v + half), outline=LANDMARK_RGB[lm.cls])
     return image
+
+
+def content_window(static: OccupancyMap, trajectory: np.ndarray, landmarks: Sequence[Landmark],
+                   occupied_thresh: float, margin_m: float = MARGIN_M
+                   ) -> tuple[int, int, int, int]:
+    """Cells (col0, row0, col1, row1) around the walls, the path and the landmarks: free
+    space cleared only by long no-return beams far beyond the walls is left out, and so are
+    the farthest ``WALL_QUANTILE`` of occupied cells on each side (stray far readings)."""
+    rows, cols = static.prob.shape
+    occ_r, occ_c = np.nonzero(static.prob > occupied_thresh)
+    if len(occ_r):
+        occ_r = np.quantile(occ_r, [WALL_QUANTILE, 1 - WALL_QUANTILE])
+        occ_c = np.quantile(occ_c, [WALL_QUANTILE, 1 - WALL_QUANTILE])
+    res = static.resolution
+    xs = [occ_c.astype(float), trajectory[:, 1:2].ravel() / res - static.origin_x / res,
+          np.array([(lm.x - static.origin_x) / res for lm in landmarks])]
+    ys = [occ_r.astype(float), trajectory[:, 2:3].ravel() / res - static.origin_y / res,
+          np.array([(lm.y - static.origin_y) / res for lm in landmarks])]
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    if not len(x):
+        return 0, 0, cols, rows
+    m = margin_m / res
+    return (max(0, int(x.min() - m)), max(0, int(y.min() - m)),
+            min(cols, math.ceil(x.max() + m) + 1), min(rows, math.ceil(y.max() + m) + 1))
+
+
+def _nice_step(span_m: float, wanted: int = 6) -> float:
+    """A round tick spacing giving about ``wanted`` ticks over ``span_m``."""
+    return next((s for s in NICE_STEPS_M if span_m / s <= wanted), NICE_STEPS_M[-1])
+
+
+def _metres(v: float) -> str:
+    return f"{v:g} m"
+
+
+def annotate(image: Image.Image, static: OccupancyMap, window: tuple[int, int, int, int],
+             scale: int) -> Image.Image:
+    """The picture framed: metre ticks (map frame) on the left and bottom, a scale bar and a
+    legend below."""
+    font = ImageFont.load_default()
+    res = static.resolution
+    c0, r0, c1, r1 = window
+    left, top, right, legend_h = 56, 10, 16, 64
+    w, h = image.width, image.height
+    canvas = Image.new("RGB", (left + w + right, top + h + 22 + legend_h), PAPER_RGB)
+    canvas.paste(image, (left, top))
+    draw = ImageDraw.Draw(canvas)
+    draw.rectangle((left - 1, top - 1, left + w, top + h), outline=INK_RGB)
+    px_per_m = scale / res
+    x0, x1 = static.origin_x + c0 * res, static.origin_x + c1 * res
+    y0, y1 = static.origin_y + r0 * res, static.origin_y + r1 * res
+    step = _nice_step(min(x1 - x0, y1 - y0), wanted=4)
+    while step * px_per_m < 44 and step < NICE_STEPS_M[-1]:  # labels must not overlap
+        step = NICE_STEPS_M[NICE_STEPS_M.index(step) + 1]
+    for k in range(math.ceil(x0 / step), math.floor(x1 / step) + 1):
+        u = left + (k * step - x0) * px_per_m
+        draw.line((u, top + h, u, top + h + 4), fill=INK_RGB)
+        draw.text((u, top + h + 6), _metres(k * step), fill=INK_RGB, font=font, anchor="ma")
+    for k in range(math.ceil(y0 / step), math.floor(y1 / step) + 1):
+        v = top + h - (k * step - y0) * px_per_m
+        draw.line((left - 5, v, left - 1, v), fill=INK_RGB)
+        draw.text((left - 7, v), _metres(k * step), fill=INK_RGB, font=font, anchor="rm")
+    # Scale bar: a round length about a fifth of the picture wide.
+    bar_m = _nice_step(w / px_per_m, wanted=5)
+    y = top + h + 30
+    draw.rectangle((left, y, left + bar_m * px_per_m, y + 5), fill=INK_RGB)
+    draw.text((left + bar_m * px_per_m + 6, y + 3), f"{_metres(bar_m)}   (cell {res:g} m)",
+              fill=INK_RGB, font=font, anchor="lm")
+    # Legend: what each colour means.
+    entries = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
+               ((128, 128, 128), "unknown"), (DYNAMIC_RGB, "dynamic D"),
+               (TRAJECTORY_RGB, "trajectory"), (LANDMARK_RGB["static"], "static landmark"),
+               (LANDMARK_RGB["dynamic"], "dynamic landmark")]
+    u, y = left, top + h + 46
+    for colour, label in entries:
+        size = draw.textlength(label, font=font)
+        if u + 16 + size > canvas.width - right and u > left:
+            u, y = left, y + 16
+        draw.rectangle((u, y, u + 10, y + 10), fill=colour, outline=INK_RGB)
+        draw.text((u + 14, y + 5), label, fill=INK_RGB, font=font, anchor="lm")
+        u += int(14 + size + 14)
+    return canvas.crop((0, 0, canvas.width, min(canvas.height, y + 18)))
+
+
+def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
+                landmarks: Sequence[Landmark], occupied_thresh: float) -> Image.Image:
+    """map.png: the part of S ∪ D with something in it, upscaled when small, framed."""
+    window = content_window(static, trajectory, landmarks, occupied_thresh)
+    size = max(window[2] - window[0], window[3] - window[1], 1)
+    scale = max(1, min(MAX_UPSCALE, MIN_PICTURE_PX // size))
+    image = render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale)
+    return annotate(image, static, window, scale)
 
 
 def write_picture(path: Path, static: OccupancyMap, dynamic: OccupancyMap,
                   trajectory: np.ndarray, landmarks: Sequence[Landmark],
                   occupied_thresh: float) -> None:
-    render(static, dynamic, trajectory, landmarks, occupied_thresh).save(
+    map_picture(static, dynamic, trajectory, landmarks, occupied_thresh).save(
         path, optimize=False, compress_level=1)  # a third of the default's time
 
 

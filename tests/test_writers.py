@@ -108,3 +108,29 @@ def test_landmarks_csv_round_trip():
     write_landmarks(buf, lms)
     assert buf.getvalue().splitlines()[0] == ",".join(HEADER)
     assert read_landmarks(io.StringIO(buf.getvalue())) == lms
+
+
+def test_map_picture_is_cropped_upscaled_and_framed():
+    from dynslam_formats.picture import (
+        DYNAMIC_RGB,
+        LANDMARK_RGB,
+        MIN_PICTURE_PX,
+        content_window,
+        map_picture,
+    )
+
+    # A 4 m × 2 m room (0.05 m cells) inside a 40 m × 40 m grid cleared by far no-returns.
+    prob = np.full((800, 800), 0.02)
+    prob[400, 400:480] = prob[440, 400:480] = 1.0
+    prob[400:441, 400] = prob[400:441, 480] = 1.0
+    static = OccupancyMap(prob=prob, resolution=0.05, origin_x=-20.0, origin_y=-20.0)
+    dynamic = OccupancyMap(prob=np.full_like(prob, 0.5), resolution=0.05, origin_x=-20.0,
+                           origin_y=-20.0)
+    traj = np.array([[0.0, 0.5, 0.5, 0.0], [1.0, 3.5, 1.5, 0.0]])
+    c0, r0, c1, r1 = content_window(static, traj, [], 0.9)
+    assert (c0, r0) == (380, 380) and (c1, r1) == (501, 461)  # the room and a metre around
+    image = map_picture(static, dynamic, traj, [Landmark(0, 0.0, 0.0, "convex", "static", 3)],
+                        0.9)
+    assert image.width >= MIN_PICTURE_PX * 0.9  # 121 cells at 6 px each, plus the frame
+    colours = {c for _, c in image.getcolors(maxcolors=1 << 16)}
+    assert DYNAMIC_RGB in colours and LANDMARK_RGB["dynamic"] in colours  # the legend
