@@ -219,16 +219,29 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
                                      snapshot_every, read_ahead=read_ahead)
     else:
         tqdm = _progress_bar()
-        with tqdm(unit="B", unit_scale=True, desc=Path(log).name, file=sys.stderr,
-                  leave=False) as bar:
+        name = Path(log).name
+        with tqdm(unit="B", unit_scale=True, desc=name, file=sys.stderr, leave=False) as bar:
 
-            def on_progress(done: int, total: int) -> None:
+            def on_progress(done: int, total: int, scans: int) -> None:
                 if total and bar.total != total:
                     bar.total = total
+                bar.set_postfix_str(f"{scans} scans", refresh=False)
                 bar.update(done - bar.n)
 
+            def on_phase(what: str, done: int, total: int) -> None:
+                label = f"{name}: {what}"
+                if bar.desc != label:  # a new phase: a bar of its own (scans), or a spinner
+                    bar.unit, bar.unit_scale = "scan", False
+                    bar.reset()
+                    bar.total = total or None  # (reset keeps the old total when given none)
+                    bar.bar_format = None if total else "{desc} ({elapsed})"
+                    bar.set_description_str(label, refresh=False)
+                    bar.set_postfix_str("", refresh=False)
+                bar.update(done - bar.n)
+                bar.refresh()
+
             summary, stats = process_log(log, target, force, options, config, format_name,
-                                         snapshot_every, on_progress, read_ahead)
+                                         snapshot_every, on_progress, read_ahead, on_phase)
     _report_warnings(summary["input"]["path"], stats)
     return summary
 

@@ -37,10 +37,13 @@ def default_output(log: str) -> Path:
 
 def process_log(log: str, target: Path, force: bool, options: Any, config: Config,
                 format_name: str | None = None, snapshot_every: float | None = None,
-                on_progress: Callable[[int, int], None] | None = None,
-                read_ahead: bool = True) -> tuple[dict[str, Any], Any]:
+                on_progress: Callable[[int, int, int], None] | None = None,
+                read_ahead: bool = True,
+                on_phase: Callable[[str, int, int], None] | None = None
+                ) -> tuple[dict[str, Any], Any]:
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
-    ``on_progress(bytes_done, bytes_total)`` is called every few scans. ``read_ahead``: read
+    ``on_progress(bytes_done, bytes_total, scans)`` is called every few scans, then
+    ``on_phase(what, done, total)`` through the final work. ``read_ahead``: read
     and measure the scans in a second process (on Linux; see dynslam_cli.localization.frontend)."""
     from dynslam_formats import open_log
     from dynslam_formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
@@ -57,12 +60,12 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             def on_scan(i: int, scan: Any, slam: Any) -> None:
                 ticks.append(time.perf_counter())
                 if on_progress is not None and i % 20 == 0:
-                    on_progress(*front.progress())
+                    on_progress(*front.progress(), i + 1)
                 if snapshots is not None:
                     snapshots.maybe_take(scan.stamp, slam)
 
             result = run(front.scans(), config, on_scan, front,
-                         online_dynamic=snapshots is not None)
+                         online_dynamic=snapshots is not None, on_phase=on_phase)
         finally:
             front.close()
             source.close()
@@ -93,6 +96,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "peak_rss_mb_read_ahead": (_peak_rss_mb(resource.RUSAGE_CHILDREN)
                                        if isinstance(front, ForkedFrontEnd) else None),
         }
+        if on_phase is not None:
+            on_phase("writing the outputs", 0, 0)
         write_results(tmp, result, config, summary)
     return summary, front.stats
 

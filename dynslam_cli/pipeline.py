@@ -190,17 +190,24 @@ class DynamicSlam:
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
         return self._result(self.mapper, trajectory)
 
-    def result(self) -> SlamResult:
+    def result(self, on_phase: Callable[[str, int, int], None] | None = None) -> SlamResult:
         """The final result: with the pose graph, the maps are rebuilt from the optimized
-        trajectory, so places seen before and after a loop closure agree."""
+        trajectory, so places seen before and after a loop closure agree. ``on_phase(what,
+        done, total)`` tells how the final work goes."""
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
         if self._loops is None or self._store is None or not len(self._store):
             return self._result(self.mapper, trajectory)
+        say = on_phase or (lambda what, done, total: None)
+        say("optimizing the pose graph", 0, 0)
         self._loops.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
         mapper = DynamicMapper(self.config)
         mapper.grids.reserve_like(self.mapper.grids)
-        for (_, x, y, th), scan in zip(trajectory, self._store.scans(), strict=True):
+        n = len(trajectory)
+        for i, ((_, x, y, th), scan) in enumerate(zip(trajectory, self._store.scans(),
+                                                      strict=True)):
+            if i % 256 == 0:
+                say("rebuilding the maps", i, n)
             mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)
         return self._result(mapper, trajectory)
 
@@ -269,12 +276,14 @@ class DynamicSlam:
 
 def run(scans: Iterable[Scan], config: Config,
         on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None,
-        front: Measurements | None = None, online_dynamic: bool = True) -> SlamResult:
+        front: Measurements | None = None, online_dynamic: bool = True,
+        on_phase: Callable[[str, int, int], None] | None = None) -> SlamResult:
     """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
-    after each scan (progress, snapshots: those need ``online_dynamic``)."""
+    after each scan (progress, snapshots: those need ``online_dynamic``), ``on_phase`` in
+    the final work (see :meth:`DynamicSlam.result`)."""
     slam = DynamicSlam(config, front, online_dynamic)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:
             on_scan(i, scan, slam)
-    return slam.result()
+    return slam.result(on_phase)

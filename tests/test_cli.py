@@ -266,3 +266,19 @@ def test_info_says_none_instead_of_empty_headings(cli):
     lines = r.stdout.splitlines()
     assert any(line.split() == ["skipped", "none"] for line in lines)
     assert any(line.split() == ["warnings", "none"] for line in lines)
+
+
+def test_progress_tells_scans_and_the_final_phases(tmp_path):
+    from dynslam_cli.config import Config
+    from dynslam_cli.job import process_log
+    from dynslam_formats import ReaderOptions
+
+    progress, phases = [], []
+    process_log(str(SAMPLE), tmp_path / "o", False, ReaderOptions(), Config(),
+                on_progress=lambda done, total, scans: progress.append((done, total, scans)),
+                on_phase=lambda what, done, total: phases.append((what, done, total)))
+    assert progress[-1][2] > 400 and progress[-1][0] <= progress[-1][1]
+    assert [p[0] for p in phases][:2] == ["optimizing the pose graph", "rebuilding the maps"]
+    assert phases[-1][0] == "writing the outputs"
+    rebuild = [p for p in phases if p[0] == "rebuilding the maps"]
+    assert rebuild[0][2] == len(read_tum(tmp_path / "o/trajectory.tum"))
