@@ -426,7 +426,8 @@ def config_command(config_file: Path | None) -> None:
 @click.option("--odometry-noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="Scale of the odometry error model; 0 = odometry equals the truth.")
 @click.option("--walkers", type=click.IntRange(2, 10), help="Moving robots in 'hall' [default: 4].")
-@click.option("--beams", type=click.IntRange(min=2), default=181, show_default=True)
+@click.option("--beams", type=click.IntRange(min=2), default=181, show_default=True,
+              help="Beams per scan.")
 @click.option("--fov", type=click.FloatRange(1, 360), default=180, show_default=True,
               help="Field of view (degrees).")
 @click.option("--max-range", type=click.FloatRange(min=0.5), default=8.0, show_default=True,

@@ -282,3 +282,15 @@ def test_progress_tells_scans_and_the_final_phases(tmp_path):
     assert phases[-1][0] == "writing the outputs"
     rebuild = [p for p in phases if p[0] == "rebuilding the maps"]
     assert rebuild[0][2] == len(read_tum(tmp_path / "o/trajectory.tum"))
+
+
+def test_every_option_of_every_command_has_help(cli):
+    import click
+
+    from dynslam_cli.cli import main
+
+    for name, command in main.commands.items():
+        for param in command.params:
+            if isinstance(param, click.Option) and param.name != "help":
+                assert param.help, f"{name} {param.opts} has no help"
+    assert "cov_xx,cov_xy,cov_yy" in cli("process", "--help").stdout
