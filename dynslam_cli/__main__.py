@@ -1,3 +1,3 @@
-from dynslam_cli.cli import main
+from dynslam_cli import run
 
-main()
+run()

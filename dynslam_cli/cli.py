@@ -51,6 +51,9 @@ def _guarded(work: Callable[[], Any]) -> Any:
         sys.exit(143)
     except BrokenPipeError:
         sys.exit(1)
+    except MemoryError as e:  # numpy's names the array it could not allocate
+        _fail(f"out of memory ({str(e).splitlines()[0] if str(e) else 'MemoryError'}); "
+              "a coarser --resolution or a smaller part of the log needs less")
 
 
 def _options(*decorators: Callable[[Any], Any]) -> Callable[[Any], Any]:
@@ -565,5 +568,19 @@ def _table(report: dict[str, Any], indent: str = "") -> str:
     return "\n".join(lines)
 
 
+def entry() -> None:
+    """The ``dynslam`` command: click's ``main``, except that Ctrl-C while the tool starts or
+    reads its arguments exits 130 as it does later (click would print 'Aborted!', exit 1)."""
+    try:
+        code = main.main(standalone_mode=False)
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        click.echo("dynslam: interrupted; no output written", err=True)
+        sys.exit(130)
+    except click.ClickException as e:
+        e.show()
+        sys.exit(e.exit_code)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
 if __name__ == "__main__":
-    main()
+    entry()

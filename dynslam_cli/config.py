@@ -54,6 +54,9 @@ class MapConfig:
     """A cell with p above this is Occupied (paper Sec. 3.1: 0.9)."""
     grow_margin_m: float = 10.0
     """When the robot leaves the grid, it grows by at least this much on that side (metres)."""
+    max_extent_m: float = 2000.0
+    """The map may span at most this much in x and in y (metres); a run whose map would grow
+    beyond stops with an error (an odometry jump, a unit error)."""
 
 
 @dataclass(frozen=True)
@@ -115,7 +118,8 @@ class Config:
         """Check value ranges; returns self so calls chain."""
         m = self.map
         checks = [
-            (m.resolution_m > 0, "map.resolution_m must be > 0"),
+            (0.005 <= m.resolution_m <= 10, "map.resolution_m must be in [0.005, 10] m"),
+            (m.max_extent_m > 0, "map.max_extent_m must be > 0"),
             (0.5 < m.p_hit < 1, "map.p_hit must be in (0.5, 1)"),
             (0 < m.p_miss < 0.5, "map.p_miss must be in (0, 0.5)"),
             (0 < m.p_clamp_min < 0.5 < m.p_clamp_max < 1,

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from dynslam_cli.errors import InputError
-from dynslam_formats.base import LogReader, ReaderOptions, ReadStats, Source, windowed
+from dynslam_formats.base import LogReader, ReaderOptions, ReadStats, Source, guarded
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
            "all_readers", "describe_log", "open_log"]
@@ -127,7 +127,7 @@ def open_log(path: str, options: ReaderOptions, format_name: str | None = None
             if entry is None:
                 raise InputError(source.name, f"unknown format {format_name!r}; known: "
                                  f"{', '.join(reader_names())}")
-        return source, entry, windowed(entry.factory(source, options), options)
+        return source, entry, guarded(entry.factory(source, options), options, source.name)
     except BaseException:
         source.close()
         raise

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import io
 import math
@@ -12,6 +13,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, ClassVar, Protocol
+
+import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import interpolate
@@ -179,6 +182,75 @@ class LogReader(Protocol):
     def scans(self) -> Iterator[Scan]: ...
 
 
+MAX_BEAMS = 20_000  # per scan; the finest 2D lidars give a few thousand
+MAX_COORDINATE_M = 1e7  # an odometry or mounting pose farther out than this is garbage
+MAX_RANGE_M = 1000.0  # a max range above this is capped: readings beyond are no-returns
+FULL_TURN = 2 * math.pi * 1.01  # a sweep spans at most one turn (plus rounding)
+
+
+def _finite_pose(pose: Pose2D) -> bool:
+    return (math.isfinite(pose.theta) and abs(pose.x) <= MAX_COORDINATE_M
+            and abs(pose.y) <= MAX_COORDINATE_M)  # (NaN fails the comparisons)
+
+
+def scan_problem(scan: Scan) -> str | None:
+    """Why a scan cannot be used (None: it can). Cheap: a few vector checks per scan."""
+    n = len(scan.ranges)
+    if not math.isfinite(scan.stamp):
+        return "time stamp is not a finite number"
+    if not (_finite_pose(scan.odom) and _finite_pose(scan.laser)):
+        return f"pose is not finite or beyond ±{MAX_COORDINATE_M:g} m"
+    if n == 0 or n != len(scan.angles):
+        return "no beams, or beam angles and ranges differ in count"
+    if n > MAX_BEAMS:
+        return f"more than {MAX_BEAMS} beams in one scan"
+    if not (scan.max_range > 0 and math.isfinite(scan.max_range)):
+        return "max range is not a positive number"
+    if not np.isfinite(scan.angles).all():
+        return "beam angles are not finite (angle_min / increment)"
+    span = float(scan.angles.max() - scan.angles.min())
+    if (n > 1 and span <= 0) or span > FULL_TURN:
+        return "beam angles do not make a sweep (increment zero, or more than one turn)"
+    return None
+
+
+class ScanGuard:
+    """A reader's scans as the core may use them, whatever the input: finite time stamp,
+    finite and bounded poses, finite beam angles making at most one turn, at most
+    ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
+    readings marked invalid. Any other scan is a counted, reported skip."""
+
+    def __init__(self, reader: LogReader, name: str) -> None:
+        self.reader = reader
+        self.name = name
+        self.format_name = reader.format_name
+        self.stats = reader.stats
+
+    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
+        return getattr(self.reader, name)
+
+    def scans(self) -> Iterator[Scan]:
+        passed = skipped = 0
+        for scan in self.reader.scans():
+            problem = scan_problem(scan)
+            if problem is not None:
+                self.stats.skip(problem, scan.source_line)
+                skipped += 1
+                continue
+            passed += 1
+            if scan.max_range > MAX_RANGE_M:
+                self.stats.warn(f"max range above {MAX_RANGE_M:g} m capped", scan.source_line)
+                scan = dataclasses.replace(scan, max_range=MAX_RANGE_M)
+            if not (scan.ranges >= 0).all():  # (NaN is already invalid; -inf and -1 are too)
+                ranges = np.where(np.isnan(scan.ranges) | (scan.ranges >= 0), scan.ranges,
+                                  np.nan)
+                scan = dataclasses.replace(scan, ranges=ranges)
+            yield scan
+        if skipped and not passed:
+            raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
+                             + "; ".join(sorted(self.stats.skipped)) + ")")
+
+
 class LogWindow:
     """A reader's scans from ``start_s`` to ``end_s`` seconds after its first scan, at most
     ``max_scans`` of them; reading stops at the end of the window."""
@@ -206,8 +278,10 @@ class LogWindow:
                 yield scan
 
 
-def windowed(reader: LogReader, options: ReaderOptions) -> LogReader:
-    """``reader`` itself, or a :class:`LogWindow` over it when the options ask for part."""
+def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
+    """``reader`` behind the :class:`ScanGuard`, and in a :class:`LogWindow` when the options
+    ask for part of the log: what every reader's scans go through (plugins' too)."""
+    reader = ScanGuard(reader, name)
     if options.start_s is None and options.end_s is None and options.max_scans is None:
         return reader
     return LogWindow(reader, options)

@@ -6,9 +6,13 @@ only when complete: a failed or interrupted run leaves no half-written map behin
 
 from __future__ import annotations
 
+import errno
+import glob
 import json
 import os
 import shutil
+import socket
+import sys
 import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -41,6 +45,8 @@ def check_target(target: Path, force: bool, log: str | None = None,
                           "holds it; name a new folder with -o")
     if log is not None and log != "-" and where in Path(log).resolve().parents:
         raise OutputError(f"{target}: holds the input log {log}; name another folder with -o")
+    if target.is_symlink():
+        raise OutputError(f"{target}: is a symbolic link; name the folder itself with -o")
     if not target.exists():
         return
     if not force:
@@ -80,6 +86,52 @@ def _json(path: Path) -> object:
         return None
 
 
+WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)  # writing failed
+OWNER_FILE = ".dynslam-run"  # in a temporary folder while a run writes it: "pid host"
+
+
+def _owner_gone(folder: Path) -> bool:
+    """Whether the run that made this temporary folder has ended (killed, power cut): its
+    owner file names a process of this host that no longer exists, or it has no owner file
+    and holds nothing but output files (from before owner files, or killed at its birth)."""
+    try:
+        pid, host = (folder / OWNER_FILE).read_text(encoding="utf-8").split()
+    except FileNotFoundError:
+        allowed = {*OUTPUT_FILES, "snapshots", "truth.json"}
+        return all(p.name in allowed or p.suffix in (".log", ".bag", ".mcap", ".db3")
+                   for p in folder.iterdir())
+    except (OSError, ValueError):
+        return False
+    if host != socket.gethostname():
+        return False  # another machine's (shared storage): not ours to judge
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return True
+    except (OSError, ValueError):
+        return False
+    return False
+
+
+def clean_stale(target: Path) -> list[Path]:
+    """Remove the temporary folders an interrupted run of ``target`` left beside it
+    (``.NAME.XXXX.partial``, ``.NAME.XXXX.old``) whose run has ended; returns them."""
+    parent = target.absolute().parent
+    removed = []
+    for folder in sorted(parent.glob(f".{glob.escape(target.name)}.*.partial")):
+        if folder.is_dir() and not folder.is_symlink() and _owner_gone(folder):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed.append(folder)
+    for trash in sorted(parent.glob(f".{glob.escape(target.name)}.*.old")):
+        inner = trash / target.name
+        if (trash.is_dir() and not trash.is_symlink()
+                and [p.name for p in trash.iterdir()] == [target.name]
+                and (is_dynslam_output(inner) or is_simulation(inner))):
+            shutil.rmtree(trash, ignore_errors=True)
+            removed.append(trash)
+    return removed
+
+
 @contextmanager
 def atomic_output_dir(target: Path, force: bool, log: str | None = None,
                       ours: Callable[[Path], bool] | None = None) -> Iterator[Path]:
@@ -87,30 +139,62 @@ def atomic_output_dir(target: Path, force: bool, log: str | None = None,
     ``log`` (the input) and ``ours`` as for :func:`check_target`."""
     check_target(target, force, log, ours)
     parent = target.absolute().parent
+    made = [p for p in (parent, *parent.parents) if not p.exists()]  # to remove on failure
+    tmp = None
     try:
         parent.mkdir(parents=True, exist_ok=True)
+        stale = clean_stale(target)
+        if stale:
+            sys.stderr.write(f"dynslam: removed {len(stale)} temporary folder(s) an interrupted "
+                             f"run of {target} left behind\n")
         tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=parent))
+        (tmp / OWNER_FILE).write_text(f"{os.getpid()} {socket.gethostname()}\n",
+                                      encoding="utf-8")
         tmp.chmod(with_umask(0o777))
     except OSError as e:
+        _undo(tmp, made)
         raise OutputError(f"{target}: cannot create output folder: {e.strerror}") from None
     try:
         yield tmp
+        (tmp / OWNER_FILE).unlink()
         check_target(target, force, log, ours)
-        if target.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=parent))
-            os.replace(target, trash / target.name)
-            os.replace(tmp, target)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.replace(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        try:
+            if target.exists():
+                trash = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old",
+                                              dir=parent))
+                os.replace(target, trash / target.name)
+                os.replace(tmp, target)
+                shutil.rmtree(trash, ignore_errors=True)
+            else:
+                os.replace(tmp, target)
+        except OSError as e:
+            raise OutputError(f"{target}: cannot put the output in place: {e.strerror}"
+                              ) from None
+    except OSError as e:
+        _undo(tmp, made)
+        if e.errno in WRITE_ERRNOS or str(e.filename or "").startswith(str(tmp)):
+            raise OutputError(f"{target}: cannot write the output: {e.strerror}") from None
         raise
+    except BaseException:
+        _undo(tmp, made)
+        raise
+
+
+def _undo(tmp: Path | None, made: list[Path]) -> None:
+    """Remove the temporary folder and the parent folders this run created (if empty)."""
+    if tmp is not None:
+        shutil.rmtree(tmp, ignore_errors=True)
+    for folder in made:  # innermost first
+        try:
+            folder.rmdir()
+        except OSError:
+            break
 
 
 def write_results(folder: Path, result: SlamResult, config: Config,
                   summary: dict[str, Any]) -> None:
-    """Write every file of the output contract into ``folder``."""
+    """Write every file of the output contract into ``folder`` (an OSError, such as a full
+    disk, becomes an :class:`OutputError` in :func:`atomic_output_dir`)."""
     m = config.map
     write_map(folder, "static", result.static, m.free_threshold, m.occupied_threshold,
               probabilities=True)

@@ -18,7 +18,7 @@ def test_defaults_and_overrides(tmp_path):
     ("[map]\nresolutoin_m = 0.1\n", "unknown key"),
     ("[mapp]\nx = 1\n", "unknown key"),
     ("[map]\nresolution_m = 'fine'\n", "expected float"),
-    ("[map]\nresolution_m = -1.0\n", "must be > 0"),
+    ("[map]\nresolution_m = -1.0\n", "must be in \\[0.005, 10\\] m"),
     ("[map\n", "not valid TOML"),
 ])
 def test_bad_config_is_an_error(tmp_path, text, message):

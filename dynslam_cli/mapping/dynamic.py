@@ -115,7 +115,7 @@ class DynamicMapper:
         m, d = config.map, config.dynamic
         self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
         self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
-                               pad_cells=self._radius)
+                               pad_cells=self._radius, max_extent_m=m.max_extent_m)
         static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
                                                        m.p_clamp_max)
         self._static = static_model

@@ -13,8 +13,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynslam_cli.errors import DynslamError
 from dynslam_cli.mapping import _grid
 from dynslam_cli.types import Pose2D
+
+
+class MapExtentError(DynslamError):
+    """The map would grow beyond its configured bound."""
 
 
 def logit(p: float) -> float:
@@ -53,8 +58,9 @@ class GridStack:
     """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one growable grid."""
 
     def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...],
-                 pad_cells: int = 1) -> None:
+                 pad_cells: int = 1, max_extent_m: float = math.inf) -> None:
         self.resolution = resolution
+        self.max_extent_m = max_extent_m
         self.pad = (pad_cells + 1) * resolution  # cells around every end point stay inside
         self.margin_cells = max(1, math.ceil(grow_margin / resolution))
         self.origin_col = 0  # world cell index of local column 0
@@ -87,6 +93,12 @@ class GridStack:
         else:
             nc0, nr0, nc1, nr1 = c0 - m, r0 - m, c1 + m, r1 + m
         new_shape = (nr1 - nr0 + 1, nc1 - nc0 + 1)
+        width, height = new_shape[1] * r, new_shape[0] * r
+        if max(width, height) > self.max_extent_m:
+            raise MapExtentError(
+                f"the map would span {width:.0f} m × {height:.0f} m, more than "
+                f"map.max_extent_m = {self.max_extent_m:g} m: an odometry jump or a unit "
+                "error in the log? (raise the bound in a --config file for a larger place)")
         dr, dc = self.origin_row - nr0, self.origin_col - nc0
         for name, old in self.layers.items():
             grown = np.zeros(new_shape, old.dtype)

@@ -1,0 +1,158 @@
+"""Bad input and faults end cleanly: a counted skip or one line and exit 1; no crash signal,
+no hang, no traceback, nothing half-written left behind (issue: hardening)."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tests.conftest import SAMPLES, flaser
+
+SAMPLE = SAMPLES / "hall" / "hall.log"
+R181 = " ".join(["2.0"] * 181)
+
+
+def carmen_log(bad: str, fixed: str, good: int = 4) -> str:
+    """One bad laser line, then ``good`` scans of the same kind (``fixed``, stamped later)
+    with odometry."""
+    lines = [bad + "\n"]
+    for t in range(2, 2 + good):
+        lines.append(f"ODOM 0 0 0 0 0 0 {t}.0 h {t}.0\n")
+        lines.append(fixed.replace(" 1.0 h 1.0", f" {t}.0 h {t}.0") + "\n")
+    return "".join(lines)
+
+
+RAW = f"RAWLASER1 0 -1.5708 3.1416 0.0175 8.0 0.01 0 181 {R181} 0 1.0 h 1.0"
+ROBOT = (f"ROBOTLASER1 0 -1.5708 3.1416 0.0175 8.0 0.01 0 181 {R181} 0 0 0 0 0 0 0 0 0 0 0 0 "
+         "1.0 h 1.0")
+FL = "FLASER 3 1 1 1 0 0 0 0 0 0 1.0 h 1.0"
+
+
+@pytest.mark.parametrize(("bad", "fixed", "reason"), [
+    (RAW.replace("0.0175", "nan"), RAW, "beam angles are not finite"),
+    (RAW.replace("-1.5708", "inf"), RAW, "beam angles are not finite"),
+    (ROBOT.replace("0.0175", "nan"), ROBOT, "beam angles are not finite"),
+    (ROBOT.replace("-1.5708", "-inf"), ROBOT, "beam angles are not finite"),
+    (RAW.replace("0.0175", "0.0"), RAW, "beam angles do not make a sweep"),
+    (RAW.replace(" 8.0 ", " nan "), RAW, "max range is not a positive number"),
+    (FL.replace(" 0 0 0 0 0 0 ", " 1e300 0 0 1e300 0 0 "), FL, "pose is not finite"),
+    (FL.replace(" 0 0 0 0 0 0 ", " nan 0 0 nan 0 0 "), FL, "pose is"),  # (the reader's)
+])
+def test_non_finite_geometry_is_a_counted_skip(cli, tmp_path, bad, fixed, reason):
+    log = tmp_path / "bad.log"
+    log.write_text(carmen_log(bad, fixed))
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0, r.stderr
+    summary = json.loads((tmp_path / "out/summary.json").read_text())
+    assert summary["scans_processed"] == 4
+    skipped = summary["reader"]["skipped"]
+    assert sum(skipped.values()) == 1 and any(reason in k for k in skipped), skipped
+    assert "Traceback" not in r.stderr and "RuntimeWarning" not in r.stderr
+
+
+def test_a_log_whose_every_scan_is_skipped_is_an_error(cli, tmp_path):
+    log = tmp_path / "bad.log"
+    log.write_text(RAW.replace("0.0175", "nan") + "\n")
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1
+    assert "no usable scans: all 1 were skipped (beam angles are not finite" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.log"]
+
+
+def test_too_many_beams_is_a_counted_skip_not_a_stall(cli, tmp_path):
+    log = tmp_path / "wide.log"
+    wide = flaser(1_000_000, t=1.0).strip()
+    log.write_text(carmen_log(wide, flaser(181, t=1.0).strip()))
+    start = time.perf_counter()
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0 and time.perf_counter() - start < 30
+    skipped = json.loads((tmp_path / "out/summary.json").read_text())["reader"]["skipped"]
+    assert any("more than 20000 beams" in k for k in skipped)
+
+
+def test_a_map_beyond_its_bound_is_one_line(cli, tmp_path):
+    text = SAMPLE.read_text().splitlines(keepends=True)
+    n, out = 0, []
+    for line in text:  # odometry jumps 100 km a third of the way in
+        f = line.split()
+        if f and f[0] in ("ODOM", "FLASER"):
+            n += f[0] == "ODOM"
+            if n > 150:
+                for i in ([1] if f[0] == "ODOM" else [2 + int(f[1]), 5 + int(f[1])]):
+                    f[i] = str(float(f[i]) + 1e5)
+                line = " ".join(f) + "\n"
+        out.append(line)
+    log = tmp_path / "jump.log"
+    log.write_text("".join(out))
+    r = cli("process", log, "-o", tmp_path / "out", "--localization", "odometry", "-q")
+    assert r.exit_code == 1
+    assert r.stderr.count("\n") == 1 and "map.max_extent_m = 2000 m" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["jump.log"]
+    r = cli("process", SAMPLE, "-o", tmp_path / "fine", "--resolution", "1e-6", "-q")
+    assert r.exit_code == 1 and "map.resolution_m must be in [0.005, 10] m" in r.stderr
+
+
+def test_output_into_a_dangling_symlink_is_refused(cli, tmp_path):
+    (tmp_path / "link").symlink_to(tmp_path / "nowhere")
+    r = cli("process", SAMPLE, "-o", tmp_path / "link", "-q")
+    assert r.exit_code == 1 and "is a symbolic link" in r.stderr
+    assert not (tmp_path / "nowhere").exists()
+
+
+def test_full_disk_is_one_line_and_removes_what_it_made(cli, tmp_path, monkeypatch):
+    import dynslam_formats.outdir
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(dynslam_formats.outdir, "write_tum", full)
+    r = cli("process", SAMPLE, "-o", tmp_path / "a/b/out", "-q")
+    assert r.exit_code == 1
+    assert r.stderr == f"dynslam: error: {tmp_path / 'a/b/out'}: cannot write the output: " \
+                       "No space left on device\n"
+    assert list(tmp_path.iterdir()) == []  # not even the parents it created
+
+
+def test_stale_partial_folders_of_a_killed_run_are_cleaned(cli, tmp_path):
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = tmp_path / ".out.abc123.partial"
+    stale.mkdir()
+    (stale / ".dynslam-run").write_text(f"{dead.pid} {os.uname().nodename}\n")
+    (stale / "static.pgm").write_bytes(b"P5 half")
+    legacy = tmp_path / ".out.def456.partial"  # from before owner files: output files only
+    legacy.mkdir()
+    (legacy / "map.png").write_bytes(b"")
+    live = tmp_path / ".out.live99.partial"  # a run that is still writing: not touched
+    live.mkdir()
+    (live / ".dynslam-run").write_text(f"{os.getpid()} {os.uname().nodename}\n")
+    foreign = tmp_path / ".out.xyz789.partial"  # holds something not ours: not touched
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("precious")
+    r = cli("process", SAMPLE, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0
+    assert "removed 2 temporary folder(s)" in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        ".out.live99.partial", ".out.xyz789.partial", "out"]
+    assert not (tmp_path / "out/.dynslam-run").exists()
+
+
+@pytest.mark.parametrize("delay", [0.15, 0.4])
+def test_ctrl_c_while_starting_exits_130_without_traceback(tmp_path, delay):
+    proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "process", "-", "-o",
+                             str(tmp_path / "out"), "-q"], stdin=subprocess.PIPE,
+                            stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert b"Traceback" not in err and b"Aborted" not in err
+    assert list(tmp_path.iterdir()) == []
