@@ -4,13 +4,19 @@ __version__ = "0.1.0"
 
 
 def run() -> None:
-    """The ``dynslam`` command. Defined here, where importing costs nothing, so a Ctrl-C
-    while the command line module still loads ends as one later would: exit 130, one line."""
-    import sys
+    """The ``dynslam`` command. Defined here, where importing costs nothing, so that a Ctrl-C
+    while the tool still loads and reads its arguments (nothing is written yet) ends at once
+    as one later would: one line, exit 130. A command's work puts the ordinary handler back
+    (its clean-up runs on the exception)."""
+    import os
+    import signal
 
-    try:
-        from dynslam_cli.cli import entry
-    except KeyboardInterrupt:
-        sys.stderr.write("dynslam: interrupted; no output written\n")
-        sys.exit(130)
+    def interrupted(signum: int, frame: object) -> None:
+        os.write(2, b"dynslam: interrupted; no output written\n")
+        os._exit(130)
+
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not if ignored
+        signal.signal(signal.SIGINT, interrupted)
+    from dynslam_cli.cli import entry
+
     entry()

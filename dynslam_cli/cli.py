@@ -39,6 +39,8 @@ def _guarded(work: Callable[[], Any]) -> Any:
     from dynslam_cli.errors import DynslamError
 
     signal.signal(signal.SIGTERM, _terminate)
+    if signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, signal.default_int_handler):
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # (see dynslam_cli.run)
     try:
         return work()
     except DynslamError as e:

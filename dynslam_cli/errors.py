@@ -2,6 +2,17 @@
 
 from __future__ import annotations
 
+MAX_MESSAGE_CHARS = 300
+
+
+def printable(text: str) -> str:
+    """``text`` safe for a terminal: control and unprintable characters (binary garbage
+    quoted from a log) escaped, one line, at most ``MAX_MESSAGE_CHARS`` characters."""
+    if text.isprintable() and len(text) <= MAX_MESSAGE_CHARS:
+        return text
+    safe = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return safe if len(safe) <= MAX_MESSAGE_CHARS else safe[:MAX_MESSAGE_CHARS - 1] + "…"
+
 
 class DynslamError(Exception):
     """Base of every error that is the user's input or environment, not a bug."""
@@ -13,7 +24,7 @@ class InputError(DynslamError):
     def __init__(self, source: str, message: str, line: int | None = None) -> None:
         self.source = source
         self.line = line
-        self.message = message
+        self.message = message = printable(message)
         where = f"{source}:{line}" if line is not None else source
         super().__init__(f"{where}: {message}")
 

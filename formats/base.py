@@ -153,14 +153,19 @@ def read_text_lines(path: Path | str) -> list[str]:
 def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     """(line number, line without its end, whether the line was terminated) for a text log.
 
-    Decoding errors are replaced, never fatal; a damaged gzip stream is an :class:`InputError`.
+    Decoding errors are replaced, never fatal; a damaged gzip stream, and a line longer than
+    ``MAX_LINE_CHARS`` (binary data, ``/dev/zero``), are an :class:`InputError`.
     """
     stream = io.TextIOWrapper(source.open(), encoding="utf-8", errors="replace", newline=None)
     lineno = 0
     try:
-        for lineno, line in enumerate(stream, 1):
+        while line := stream.readline(MAX_LINE_CHARS + 1):
+            lineno += 1
             if line.endswith("\n"):
                 yield lineno, line[:-1], True
+            elif len(line) > MAX_LINE_CHARS:
+                raise InputError(source.name, f"a line longer than {MAX_LINE_CHARS} characters: "
+                                 "not a text log?", lineno)
             else:
                 yield lineno, line, False
     except (EOFError, gzip.BadGzipFile, zlib.error) as e:
@@ -182,6 +187,7 @@ class LogReader(Protocol):
     def scans(self) -> Iterator[Scan]: ...
 
 
+MAX_LINE_CHARS = 4_000_000  # a text log's line: 20000 beams with remissions fit 10 times
 MAX_BEAMS = 20_000  # per scan; the finest 2D lidars give a few thousand
 MAX_COORDINATE_M = 1e7  # an odometry or mounting pose farther out than this is garbage
 MAX_RANGE_M = 1000.0  # a max range above this is capped: readings beyond are no-returns

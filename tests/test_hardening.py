@@ -68,7 +68,7 @@ def test_a_log_whose_every_scan_is_skipped_is_an_error(cli, tmp_path):
 
 def test_too_many_beams_is_a_counted_skip_not_a_stall(cli, tmp_path):
     log = tmp_path / "wide.log"
-    wide = flaser(1_000_000, t=1.0).strip()
+    wide = flaser(100_000, t=1.0).strip()
     log.write_text(carmen_log(wide, flaser(181, t=1.0).strip()))
     start = time.perf_counter()
     r = cli("process", log, "-o", tmp_path / "out", "-q")
@@ -156,3 +156,19 @@ def test_ctrl_c_while_starting_exits_130_without_traceback(tmp_path, delay):
     assert proc.returncode == 130, err
     assert b"Traceback" not in err and b"Aborted" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_endless_line_is_an_error_not_a_memory_error(cli, tmp_path):
+    log = tmp_path / "zeros.log"
+    with open(log, "wb") as f:  # what `dynslam process /dev/zero --format carmen` reads
+        f.write(b"\0" * 5_000_000)
+    r = cli("process", log, "--format", "carmen", "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1
+    assert "a line longer than 4000000 characters" in r.stderr
+
+
+def test_garbage_is_not_echoed_raw():
+    from dynslam_cli.errors import InputError
+
+    e = InputError("x.log", "FLASER field 3 ('\x1b[2J\x00ok') is not a number" + "x" * 500, 3)
+    assert str(e).isprintable() and "\\x1b" in str(e) and len(str(e)) < 320
