@@ -15,6 +15,13 @@ lines; each scan gets the odometry interpolated at its time (:class:`OdometryBuf
 ``--laser N`` picks the laser device index (default: the first one seen). Bad input follows
 the Carmen reader's rules: a malformed or non-numeric record is an error naming file and
 line (a damaged last line is a counted skip); other interfaces are counted and ignored.
+Per case: a file version other than 0.0, 0.2 or 0.3 is an error (the layouts differ); a
+device index, type, subtype or beam count that is not a whole number (or a count beyond
+``MAX_BEAMS``) is an error; a record with fewer values than its layout needs is an error; a
+time stamp that is not finite is a counted skip; laser records of other types or subtypes
+are counted and ignored. Scans with a non-finite resolution, minimum angle or max range, or
+a zero resolution, are counted skips (the common guard, ``dynslam_formats.base``); a
+negative resolution or min > max is a sweep in the other direction and is kept.
 """
 
 from __future__ import annotations
@@ -27,7 +34,16 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
+from dynslam_formats.base import (
+    MAX_BEAMS,
+    OdometryBuffer,
+    ReaderOptions,
+    ReadStats,
+    Source,
+    text_lines,
+)
+
+VERSIONS = ("0.0", "0.2", "0.3")
 
 
 def sniff(head: bytes) -> bool:
@@ -64,6 +80,18 @@ class PlayerReader:
             bad = next(t for t in tokens if not _is_number(t))
             raise self._fail(f"field {bad!r} is not a number") from None
 
+    def _integer(self, token: str, what: str) -> int:
+        try:
+            return int(token)
+        except ValueError:
+            raise self._fail(f"{what} {token!r} is not a whole number") from None
+
+    def _count(self, value: float) -> int:
+        """A beam count read as a number: whole, 0 to ``MAX_BEAMS``."""
+        if not (math.isfinite(value) and value == int(value) and 0 <= value <= MAX_BEAMS):
+            raise self._fail(f"beam count {value:g} is not a whole number from 0 to {MAX_BEAMS}")
+        return int(value)
+
     def scans(self) -> Iterator[Scan]:
         any_record = False
         for lineno, line, terminated in text_lines(self.source):
@@ -71,6 +99,9 @@ class PlayerReader:
             if line.startswith("#"):
                 if "File version" in line:
                     self.version = line.split()[-1]
+                    if not self.version.startswith(VERSIONS):
+                        raise self._fail(f"unknown Player file version {self.version!r} "
+                                         f"(known: {', '.join(VERSIONS)})")
                 continue
             tokens = line.split()
             if not tokens:
@@ -96,15 +127,16 @@ class PlayerReader:
         iface, index = tokens[3], tokens[4]
         self.stats.records[iface] += 1
         stamp = float(self._numbers(tokens[:1])[0])
+        if not math.isfinite(stamp):
+            self.stats.skip("time stamp is not a finite number", self._line)
+            return
         if old:
             payload, kind = tokens[6:], ("1", "1")
         else:
             if len(tokens) < 7:
                 raise self._fail("a 0.3 record has 7 header fields")
-            try:
-                kind = (str(int(tokens[5])), str(int(tokens[6])))
-            except ValueError:
-                raise self._fail("type and subtype must be integers") from None
+            kind = (str(self._integer(tokens[5], "type")),
+                    str(self._integer(tokens[6], "subtype")))
             payload = tokens[7:]
         if iface in ("position2d", "position") and kind == ("1", "1"):
             v = self._numbers(payload[:3])
@@ -113,19 +145,24 @@ class PlayerReader:
             yield from self._emit(self._buffer.add_odometry(
                 stamp, Pose2D(float(v[0]), float(v[1]), float(v[2])), self._line))
         elif iface == "laser":
+            device = str(self._integer(index, "laser index"))
             if self._device is None:
-                self._device = str(int(index))
-            if str(int(index)) != self._device:
-                self.stats.skip(f"laser {int(index)} (using {self._device})", self._line)
+                self._device = device
+            if device != self._device:
+                self.stats.skip(f"laser {device} (using {self._device})", self._line)
                 return
             if kind == ("4", "1"):
                 v = self._numbers(payload[:3])
+                if len(v) < 3:
+                    raise self._fail("laser geometry needs px py pyaw")
                 self._mount = Pose2D(float(v[0]), float(v[1]), float(v[2]))
             elif kind[0] == "1":
                 scan = self._laser(payload, kind[1], old)
                 if scan is not None:
                     yield from self._emit(self._buffer.add_scan(stamp, (stamp, *scan),
                                                                 self._line))
+            else:
+                self.stats.warn(f"laser type {kind[0]} subtype {kind[1]} ignored", self._line)
         else:
             self.stats.warn(f"interface {iface} ignored", self._line)
 
@@ -139,7 +176,9 @@ class PlayerReader:
             head, n_at, max_range = 4, 8, None
         elif subtype == "3":  # id max_range count (range angle intensity)×
             v = self._numbers(p[1:3])
-            n = int(v[1])
+            if len(v) < 2:
+                raise self._fail("scanangle needs id, max range and count")
+            n = self._count(float(v[1]))
             body = self._numbers(p[3:3 + 3 * n])
             if len(body) != 3 * n or len(p) != 3 + 3 * n:
                 raise self._fail(f"scanangle expects {n} triples")
@@ -152,7 +191,7 @@ class PlayerReader:
         v = self._numbers(p[head:n_at + 1])
         lo, hi, res = v[0], v[1], v[2]
         max_range = float(v[3]) if max_range is None else max_range
-        n = int(v[-1])
+        n = self._count(float(v[-1]))
         if len(p) != n_at + 1 + 2 * n:
             raise self._fail(f"laser record has {len(p) - n_at - 1} values after the count, "
                              f"expected {2 * n} (range, intensity) for {n} beams")

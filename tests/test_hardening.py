@@ -172,3 +172,43 @@ def test_garbage_is_not_echoed_raw():
 
     e = InputError("x.log", "FLASER field 3 ('\x1b[2J\x00ok') is not a number" + "x" * 500, 3)
     assert str(e).isprintable() and "\\x1b" in str(e) and len(str(e)) < 320
+
+
+GOOD_PLAYER = "11.0 1 6665 laser 00 001 001 0 -1.57 1.57 1.57 8 3 1 0 1 0 1 0\n"
+
+
+@pytest.mark.parametrize(("record", "message"), [
+    ("laser xx 001 001 0 -1.57 1.57 0.0175 8 1 2.0 0", "laser index 'xx' is not a whole"),
+    ("laser 00 001 003 7", "scanangle needs id, max range and count"),
+    ("laser 00 004 001 0.1", "laser geometry needs px py pyaw"),
+    ("laser 00 001 001 0 -1.57 1.57 0.0175 8 nan", "beam count nan is not a whole number"),
+    ("laser 00 001 001 0 -1.57 1.57 0.0175 8 -3", "beam count -3 is not a whole number"),
+    ("laser 00 0x1 001 0 -1.57 1.57 0.0175 8 1 2.0 0", "type '0x1' is not a whole number"),
+])
+def test_player_records_that_do_not_fit_are_one_line(cli, tmp_path, record, message):
+    log = tmp_path / "p.log"
+    log.write_text(f"## File version 0.3.0\n10.0 1 6665 {record}\n{GOOD_PLAYER}")
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert f"p.log:2: {message}" in r.stderr
+
+
+@pytest.mark.parametrize("version", ["9.9.9", "abc"])
+def test_unknown_player_version_is_an_error(cli, tmp_path, version):
+    log = tmp_path / "p.log"
+    log.write_text(f"## File version {version}\n{GOOD_PLAYER}")
+    r = cli("process", log, "--format", "player", "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and f"unknown Player file version '{version}'" in r.stderr
+
+
+def test_player_counts_what_it_leaves_out(cli, tmp_path):
+    log = tmp_path / "p.log"
+    log.write_text("## File version 0.3.0\n"
+                   "nan 1 6665 laser 00 001 001 0 -1.57 1.57 1.57 8 3 1 0 1 0 1 0\n"
+                   "10.5 1 6665 laser 00 004 002 1 2 3\n" + GOOD_PLAYER
+                   + GOOD_PLAYER.replace("11.0", "12.0"))
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0, r.stderr
+    reader = json.loads((tmp_path / "out/summary.json").read_text())["reader"]
+    assert reader["skipped"] == {"time stamp is not a finite number": 1}
+    assert reader["warnings"]["laser type 4 subtype 2 ignored"] == 1
