@@ -39,6 +39,12 @@ def _guarded(work: Callable[[], Any]) -> Any:
     from dynslam_cli.errors import DynslamError
 
     signal.signal(signal.SIGTERM, _terminate)
+    import warnings
+
+    # Damaged input is reported as counts and skips; numpy's floating-point warnings about
+    # it ("overflow encountered in cast") are not for the user's terminal.
+    warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"numpy(\.|$)")
+    warnings.filterwarnings("ignore", message=r".*encountered in", category=RuntimeWarning)
     if signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, signal.default_int_handler):
         signal.signal(signal.SIGINT, signal.default_int_handler)  # (see dynslam_cli.run)
     try:

@@ -6,10 +6,12 @@ import dataclasses
 import gzip
 import io
 import math
+import struct
 import sys
 import zlib
 from collections import Counter, deque
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, ClassVar, Protocol
@@ -171,6 +173,39 @@ def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     except (EOFError, gzip.BadGzipFile, zlib.error) as e:
         raise InputError(source.name, f"compressed data is damaged or truncated ({e})",
                          lineno + 1) from None
+
+
+_OURS = (str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parent.parent /
+                                                  "dynslam_cli"))
+
+
+def _raised_by_library(e: BaseException) -> bool:
+    """Whether the innermost frame of ``e``'s traceback is outside dynslam (a container
+    library's own error on damaged data, not a bug of ours)."""
+    tb = e.__traceback__
+    if tb is None:
+        return False
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    return not tb.tb_frame.f_code.co_filename.startswith(_OURS)
+
+
+@contextmanager
+def container_errors(name: str, what: str) -> Iterator[None]:
+    """The one place a container library's exceptions (rosbags, mcap, zstd, sqlite, struct,
+    ...) on damaged data become a one-line :class:`InputError` naming the file; its message
+    is cut to its first line (some quote a whole message definition)."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as e:
+        if not (isinstance(e, UnicodeDecodeError | struct.error | EOFError)
+                or _raised_by_library(e)):
+            raise
+        lines = str(e).strip().splitlines()
+        first = lines[0] if lines else type(e).__name__
+        raise InputError(name, f"cannot read this {what}: {first}") from None
 
 
 class LogReader(Protocol):

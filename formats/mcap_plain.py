@@ -9,7 +9,7 @@ from typing import Any, ClassVar
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Scan
-from dynslam_formats.base import ReaderOptions, ReadStats, Source
+from dynslam_formats.base import ReaderOptions, ReadStats, Source, container_errors
 from dynslam_formats.ros import MCAP_MAGIC, TF_TYPES, RosMessages, choose_topics
 
 
@@ -36,10 +36,10 @@ class McapReader:
         from mcap.reader import make_reader
 
         try:
-            with open(source.path, "rb") as f:
+            with open(source.path, "rb") as f, container_errors(source.name, "MCAP file"):
                 profile = make_reader(f).get_header().profile
-        except Exception as e:
-            raise InputError(source.name, f"not a readable MCAP file: {e}") from None
+        except OSError as e:
+            raise InputError(source.name, f"cannot read: {e.strerror}") from None
         if profile == "ros2":
             from dynslam_formats.ros import RosbagsReader
 
@@ -51,19 +51,15 @@ class McapReader:
             yield from self._ros2.scans()
             self.topics = self._ros2.topics
             return
-        from mcap.exceptions import McapError
         from mcap.reader import make_reader
 
         name = self.source.name
-        try:
-            with open(self.source.path, "rb") as f:
-                reader = make_reader(f)
-                summary = reader.get_summary()
-                if summary is None:
-                    raise InputError(name, "MCAP file has no summary (truncated?)")
-                yield from self._read(reader, summary)
-        except (McapError, EOFError, ValueError) as e:
-            raise InputError(name, f"cannot read this MCAP file: {e}") from None
+        with open(self.source.path, "rb") as f, container_errors(name, "MCAP file"):
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:
+                raise InputError(name, "MCAP file has no summary (truncated?)")
+            yield from self._read(reader, summary)
 
     def _read(self, reader: Any, summary: Any) -> Iterator[Scan]:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore

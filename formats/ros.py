@@ -28,7 +28,13 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source
+from dynslam_formats.base import (
+    OdometryBuffer,
+    ReaderOptions,
+    ReadStats,
+    Source,
+    container_errors,
+)
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
@@ -131,7 +137,8 @@ class RosMessages:
                 yield from self._ready(self.buffer.add_odometry(stamp_of(tf), pose))
 
     def _scan(self, msg: Any) -> tuple[float, np.ndarray, np.ndarray, float, str]:
-        r = np.asarray(msg.ranges, dtype=np.float64)
+        with np.errstate(invalid="ignore", over="ignore"):  # damaged payloads: counted below
+            r = np.asarray(msg.ranges, dtype=np.float64)
         lo, hi = float(msg.range_min), float(msg.range_max)
         with np.errstate(invalid="ignore"):
             invalid = np.isnan(r) | np.isneginf(r) | (np.isfinite(r) & ((r < lo) | (r > hi)))
@@ -181,20 +188,16 @@ class RosbagsReader:
         from rosbags.typesys import Stores, get_typestore
 
         path = Path(self.source.path)
-        try:
-            with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as bag:
-                yield from self._read(bag)
-        except InputError:
-            raise
-        except (AnyReaderError, AssertionError, OSError, KeyError, ValueError,
-                EOFError) as e:
-            detail = str(e).strip() or type(e).__name__
-            what = "its index is not readable" if isinstance(e, AssertionError) else detail
-            raise InputError(self.source.name, f"cannot read this bag: {what}") from None
-        except Exception as e:  # rosbags raises its own error types per storage plugin
-            if type(e).__module__.startswith("rosbags"):
+        with container_errors(self.source.name, "bag"):
+            try:
+                typestore = get_typestore(Stores.ROS2_HUMBLE)
+                with AnyReader([path], default_typestore=typestore) as bag:
+                    yield from self._read(bag)
+            except AssertionError:
+                raise InputError(self.source.name, "cannot read this bag: its index is not "
+                                 "readable") from None
+            except AnyReaderError as e:
                 raise InputError(self.source.name, f"cannot read this bag: {e}") from None
-            raise
 
     def _read(self, bag: Any) -> Iterator[Scan]:
         conns = bag.connections
