@@ -88,7 +88,7 @@ class McapReader:
                                  f"{channel.message_encoding!r} is not supported")
             msgtype = _normalised(schema.name)
             msg = store.deserialize_ros1(message.data, msgtype)
-            yield from handler.feed(channel.topic, msgtype, msg)
+            yield from handler.feed(channel.topic, msgtype, msg, name)
         yield from handler.finish()
         if self.stats.scans == 0:
             raise InputError(name, f"no scans on {scan_topic}")

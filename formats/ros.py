@@ -112,7 +112,16 @@ class RosMessages:
         self.tf_odometry = odom_topic is None
         self._last_stamp = -math.inf
 
-    def feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
+    def feed(self, topic: str, msgtype: str, msg: Any, source: str) -> Iterator[Scan]:
+        """The scans ``msg`` completes. A message without the fields of its type (a log's own
+        damaged message definition) is an :class:`InputError` naming ``source``."""
+        try:
+            yield from self._feed(topic, msgtype, msg)
+        except AttributeError as e:
+            raise InputError(source, f"a {msgtype} message on {topic} has no field "
+                             f"{e.name!r}: is the log's message definition damaged?") from None
+
+    def _feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
         if topic == self.scan_topic:
             yield from self._ready(self.buffer.add_scan(stamp_of(msg), self._scan(msg)))
         elif topic == self.odom_topic:
@@ -211,7 +220,8 @@ class RosbagsReader:
         wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
                   or c.msgtype in TF_TYPES]
         for conn, _, raw in bag.messages(connections=wanted):
-            yield from handler.feed(conn.topic, conn.msgtype, bag.deserialize(raw, conn.msgtype))
+            msg = bag.deserialize(raw, conn.msgtype)
+            yield from handler.feed(conn.topic, conn.msgtype, msg, name)
         yield from handler.finish()
         if self.stats.scans == 0:
             raise InputError(name, f"no scans on {scan_topic}")
