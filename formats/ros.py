@@ -13,8 +13,12 @@ What is read:
   log is said to have no odometry once and runs with the stationary motion prior.
 * the laser's mounting pose: (static) TF ``base → <scan frame_id>``, else identity.
 
-Bad bags (a broken index, a pre-2.0 ``#ROSRECORD`` bag, a truncated file) give a one-line
-error naming the file.
+Bad bags (a broken index, a pre-2.0 ``#ROSRECORD`` bag, a truncated file, a damaged message
+definition) give a one-line error naming the file. A LaserScan whose range count contradicts
+its angles (``angle_min + (n − 1)·angle_increment`` farther than one increment and 1% of the
+span from ``angle_max``) is a counted skip: which of the two is wrong cannot be told. Non-finite
+angles or stamps, a zero increment and a bad ``range_max`` are skipped by the common guard
+(``dynslam_formats.base``); stamps that go backwards are counted and kept in log order.
 """
 
 from __future__ import annotations
@@ -59,6 +63,15 @@ def stamp_of(msg: Any) -> float:
 
 def yaw_of(q: Any) -> float:
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+
+
+def span_agrees(msg: Any) -> bool:
+    """Whether a LaserScan's range count fits its angles (non-finite ones are the guard's)."""
+    lo, hi, inc = float(msg.angle_min), float(msg.angle_max), float(msg.angle_increment)
+    n = len(msg.ranges)
+    if n < 2 or not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(inc)):
+        return True
+    return abs(lo + (n - 1) * inc - hi) <= abs(inc) + 0.01 * abs(hi - lo)
 
 
 def frame(name: str) -> str:
@@ -123,6 +136,9 @@ class RosMessages:
 
     def _feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
         if topic == self.scan_topic:
+            if not span_agrees(msg):
+                self.stats.skip("LaserScan range count contradicts angle_min/max/increment")
+                return
             yield from self._ready(self.buffer.add_scan(stamp_of(msg), self._scan(msg)))
         elif topic == self.odom_topic:
             p = msg.pose.pose

@@ -212,3 +212,19 @@ def test_player_counts_what_it_leaves_out(cli, tmp_path):
     reader = json.loads((tmp_path / "out/summary.json").read_text())["reader"]
     assert reader["skipped"] == {"time stamp is not a finite number": 1}
     assert reader["warnings"]["laser type 4 subtype 2 ignored"] == 1
+
+
+def test_laserscan_whose_count_contradicts_its_angles_is_skipped():
+    from types import SimpleNamespace
+
+    from dynslam_formats.ros import span_agrees
+
+    def scan(n, lo=-1.5, hi=1.5, inc=None):
+        return SimpleNamespace(angle_min=lo, angle_max=hi,
+                               angle_increment=(hi - lo) / 180 if inc is None else inc,
+                               ranges=[1.0] * n)
+
+    assert span_agrees(scan(181)) and span_agrees(scan(180)) and span_agrees(scan(182))
+    assert not span_agrees(scan(90)) and not span_agrees(scan(361))
+    assert span_agrees(scan(181, lo=1.5, hi=-1.5))  # a sweep the other way
+    assert span_agrees(scan(181, inc=float("nan")))  # (the common guard skips it)
