@@ -228,3 +228,21 @@ def test_laserscan_whose_count_contradicts_its_angles_is_skipped():
     assert not span_agrees(scan(90)) and not span_agrees(scan(361))
     assert span_agrees(scan(181, lo=1.5, hi=-1.5))  # a sweep the other way
     assert span_agrees(scan(181, inc=float("nan")))  # (the common guard skips it)
+
+
+@pytest.mark.parametrize("delay", [0.05, 0.15, 0.4, 1.0])
+def test_sigterm_at_any_moment_ends_143_and_leaves_nothing(tmp_path, delay):
+    """Before the work starts the default action ends the process (the shell sees 143);
+    from then on the handler cleans up and exits 143 itself."""
+    proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "process", "-", "-o",
+                             str(tmp_path / "out"), "-q"], stdin=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdin is not None
+    proc.stdin.write("".join(flaser(t=i) for i in range(1, 300)).encode())
+    proc.stdin.flush()
+    time.sleep(delay)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode in (143, -signal.SIGTERM), err
+    assert b"Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
