@@ -17,6 +17,6 @@ def run() -> None:
 
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not if ignored
         signal.signal(signal.SIGINT, interrupted)
-    from dynslam_cli.cli import entry
+    from dynslam_cli.cli import main
 
-    entry()
+    main()

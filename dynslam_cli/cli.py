@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -39,15 +40,12 @@ def _guarded(work: Callable[[], Any]) -> Any:
     from dynslam_cli.errors import DynslamError
 
     signal.signal(signal.SIGTERM, _terminate)
-    import warnings
-
     # Damaged input is reported as counts and skips; numpy's floating-point warnings about
     # it ("overflow encountered in cast") are not for the user's terminal.
-    warnings.filterwarnings("ignore", category=RuntimeWarning, module=r"numpy(\.|$)")
     warnings.filterwarnings("ignore", message=r".*encountered in", category=RuntimeWarning)
-    if signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, signal.default_int_handler):
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # (see dynslam_cli.run)
     try:
+        if signal.getsignal(signal.SIGINT) not in (signal.SIG_IGN, signal.default_int_handler):
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # (see dynslam_cli.run)
         return work()
     except DynslamError as e:
         _fail(str(e))
@@ -576,19 +574,5 @@ def _table(report: dict[str, Any], indent: str = "") -> str:
     return "\n".join(lines)
 
 
-def entry() -> None:
-    """The ``dynslam`` command: click's ``main``, except that Ctrl-C while the tool starts or
-    reads its arguments exits 130 as it does later (click would print 'Aborted!', exit 1)."""
-    try:
-        code = main.main(standalone_mode=False)
-    except (click.exceptions.Abort, KeyboardInterrupt):
-        click.echo("dynslam: interrupted; no output written", err=True)
-        sys.exit(130)
-    except click.ClickException as e:
-        e.show()
-        sys.exit(e.exit_code)
-    sys.exit(code if isinstance(code, int) else 0)
-
-
 if __name__ == "__main__":
-    entry()
+    main()

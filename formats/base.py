@@ -255,20 +255,27 @@ def scan_problem(scan: Scan) -> str | None:
     return None
 
 
-class ScanGuard:
+class ReaderFilter:
+    """A reader seen through a filter of its scans: same format name, stats and extras."""
+
+    def __init__(self, reader: LogReader) -> None:
+        self.reader = reader
+        self.format_name = reader.format_name
+        self.stats = reader.stats
+
+    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
+        return getattr(self.reader, name)
+
+
+class ScanGuard(ReaderFilter):
     """A reader's scans as the core may use them, whatever the input: finite time stamp,
     finite and bounded poses, finite beam angles making at most one turn, at most
     ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
     readings marked invalid. Any other scan is a counted, reported skip."""
 
     def __init__(self, reader: LogReader, name: str) -> None:
-        self.reader = reader
+        super().__init__(reader)
         self.name = name
-        self.format_name = reader.format_name
-        self.stats = reader.stats
-
-    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
-        return getattr(self.reader, name)
 
     def scans(self) -> Iterator[Scan]:
         passed = skipped = 0
@@ -282,30 +289,24 @@ class ScanGuard:
             if scan.max_range > MAX_RANGE_M:
                 self.stats.warn(f"max range above {MAX_RANGE_M:g} m capped", scan.source_line)
                 scan = dataclasses.replace(scan, max_range=MAX_RANGE_M)
-            if not (scan.ranges >= 0).all():  # (NaN is already invalid; -inf and -1 are too)
-                ranges = np.where(np.isnan(scan.ranges) | (scan.ranges >= 0), scan.ranges,
-                                  np.nan)
-                scan = dataclasses.replace(scan, ranges=ranges)
+            negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
+            if negative.any():
+                scan = dataclasses.replace(scan, ranges=np.where(negative, np.nan, scan.ranges))
             yield scan
         if skipped and not passed:
             raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
                              + "; ".join(sorted(self.stats.skipped)) + ")")
 
 
-class LogWindow:
+class LogWindow(ReaderFilter):
     """A reader's scans from ``start_s`` to ``end_s`` seconds after its first scan, at most
     ``max_scans`` of them; reading stops at the end of the window."""
 
     def __init__(self, reader: LogReader, options: ReaderOptions) -> None:
-        self.reader = reader
-        self.format_name = reader.format_name
-        self.stats = reader.stats
+        super().__init__(reader)
         self.start = options.start_s if options.start_s is not None else -math.inf
         self.end = options.end_s if options.end_s is not None else math.inf
         self.max_scans = options.max_scans
-
-    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
-        return getattr(self.reader, name)
 
     def scans(self) -> Iterator[Scan]:
         first, n = None, 0

@@ -46,19 +46,19 @@ def classes(prob: np.ndarray, free_thresh: float, occupied_thresh: float
     return flipped < free_thresh, flipped > occupied_thresh
 
 
-def trinary_pixels(prob: np.ndarray, free_thresh: float, occupied_thresh: float) -> np.ndarray:
-    """The map_saver picture: 254 Free, 205 Unknown, 0 Occupied (row 0 = top)."""
-    free, occupied = classes(prob, free_thresh, occupied_thresh)
+def trinary_pixels(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:
+    """The map_saver picture of the class masks: 254 Free, 205 Unknown, 0 Occupied."""
     pixels = np.full(free.shape, UNKNOWN_PIXEL, dtype=np.uint8)
     pixels[free] = FREE_PIXEL
     pixels[occupied] = OCCUPIED_PIXEL
     return pixels
 
 
-def scale_pixels(prob: np.ndarray, free_thresh: float, occupied_thresh: float) -> np.ndarray:
-    """Grey + alpha (row 0 = top): grey the probability, transparent where Unknown; grey of
-    known cells kept strictly on their side of the thresholds after rounding."""
-    free, occupied = classes(prob, free_thresh, occupied_thresh)
+def scale_pixels(prob: np.ndarray, free: np.ndarray, occupied: np.ndarray, free_thresh: float,
+                 occupied_thresh: float) -> np.ndarray:
+    """Grey + alpha (row 0 = top): grey the probability, transparent where Unknown (the class
+    masks as :func:`classes` gives them); grey of known cells kept strictly on their side of
+    the thresholds after rounding."""
     grey = to_pixels(prob)
     lightest_occupied = math.ceil(255.0 * (1.0 - occupied_thresh)) - 1
     darkest_free = math.floor(255.0 * (1.0 - free_thresh)) + 1
@@ -82,14 +82,15 @@ def write_map(folder: Path, name: str, grid: OccupancyMap, free_thresh: float,
               occupied_thresh: float, probabilities: bool = False) -> None:
     """Write ``folder/name.pgm`` + ``name.yaml`` (trinary), and with ``probabilities`` also
     ``name_prob.png`` + ``name_prob.yaml`` (scale, alpha = unknown)."""
-    Image.fromarray(trinary_pixels(grid.prob, free_thresh, occupied_thresh), mode="L").save(
-        folder / f"{name}.pgm")
+    free, occupied = classes(grid.prob, free_thresh, occupied_thresh)
+    Image.fromarray(trinary_pixels(free, occupied), mode="L").save(folder / f"{name}.pgm")
     (folder / f"{name}.yaml").write_text(
         _yaml(f"{name}.pgm", "trinary", grid, TRINARY_FREE_THRESH, TRINARY_OCCUPIED_THRESH),
         encoding="utf-8")
     if probabilities:
-        Image.fromarray(scale_pixels(grid.prob, free_thresh, occupied_thresh), mode="LA").save(
-            folder / f"{name}_prob.png", optimize=False, compress_level=1)
+        grey_alpha = scale_pixels(grid.prob, free, occupied, free_thresh, occupied_thresh)
+        Image.fromarray(grey_alpha, mode="LA").save(folder / f"{name}_prob.png",
+                                                    optimize=False, compress_level=1)
         (folder / f"{name}_prob.yaml").write_text(
             _yaml(f"{name}_prob.png", "scale", grid, free_thresh, occupied_thresh),
             encoding="utf-8")

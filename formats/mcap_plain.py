@@ -79,7 +79,7 @@ class McapReader:
             if schema.encoding != "ros1msg":
                 continue
             store.register(get_types_from_msg(schema.data.decode(), _normalised(schema.name)))
-        handler = RosMessages(self.stats, scan_topic, odom_topic)
+        handler = RosMessages(self.stats, scan_topic, odom_topic, name)
         wanted = [t for t, m in types.items()
                   if t in (scan_topic, odom_topic) or m in TF_TYPES]
         for schema, channel, message in reader.iter_messages(topics=wanted):
@@ -88,7 +88,7 @@ class McapReader:
                                  f"{channel.message_encoding!r} is not supported")
             msgtype = _normalised(schema.name)
             msg = store.deserialize_ros1(message.data, msgtype)
-            yield from handler.feed(channel.topic, msgtype, msg, name)
+            yield from handler.feed(channel.topic, msgtype, msg)
         yield from handler.finish()
         if self.stats.scans == 0:
             raise InputError(name, f"no scans on {scan_topic}")

@@ -115,8 +115,10 @@ class RosMessages:
     """Turns deserialized messages, in log order, into :class:`Scan` records. Shared by the
     rosbags reader and the plain-MCAP reader."""
 
-    def __init__(self, stats: ReadStats, scan_topic: str, odom_topic: str | None) -> None:
+    def __init__(self, stats: ReadStats, scan_topic: str, odom_topic: str | None,
+                 source: str) -> None:
         self.stats = stats
+        self.source = source
         self.scan_topic = scan_topic
         self.odom_topic = odom_topic
         self.buffer = OdometryBuffer(stats)
@@ -125,13 +127,13 @@ class RosMessages:
         self.tf_odometry = odom_topic is None
         self._last_stamp = -math.inf
 
-    def feed(self, topic: str, msgtype: str, msg: Any, source: str) -> Iterator[Scan]:
+    def feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
         """The scans ``msg`` completes. A message without the fields of its type (a log's own
-        damaged message definition) is an :class:`InputError` naming ``source``."""
+        damaged message definition) is an :class:`InputError` naming the source."""
         try:
             yield from self._feed(topic, msgtype, msg)
         except AttributeError as e:
-            raise InputError(source, f"a {msgtype} message on {topic} has no field "
+            raise InputError(self.source, f"a {msgtype} message on {topic} has no field "
                              f"{e.name!r}: is the log's message definition damaged?") from None
 
     def _feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
@@ -232,12 +234,12 @@ class RosbagsReader:
         scan_topic, odom_topic = choose_topics(
             {c.topic: (c.msgtype, c.msgcount) for c in conns}, self.options, name)
         self.topics = (scan_topic, odom_topic)
-        handler = RosMessages(self.stats, scan_topic, odom_topic)
+        handler = RosMessages(self.stats, scan_topic, odom_topic, name)
         wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
                   or c.msgtype in TF_TYPES]
         for conn, _, raw in bag.messages(connections=wanted):
             msg = bag.deserialize(raw, conn.msgtype)
-            yield from handler.feed(conn.topic, conn.msgtype, msg, name)
+            yield from handler.feed(conn.topic, conn.msgtype, msg)
         yield from handler.finish()
         if self.stats.scans == 0:
             raise InputError(name, f"no scans on {scan_topic}")
