@@ -37,7 +37,7 @@ def _terminate(signum: int, frame: object) -> None:
 def _guarded(work: Callable[[], Any]) -> Any:
     """Run ``work``; known errors become one line on stderr and exit code 1; Ctrl-C (130)
     and SIGTERM (143) leave no output folder or temporary files behind."""
-    from dynslam_cli.errors import DynslamError
+    from dynslam_cli.errors import DynslamError, printable
 
     signal.signal(signal.SIGTERM, _terminate)
     # Damaged input is reported as counts and skips; numpy's floating-point warnings about
@@ -57,6 +57,9 @@ def _guarded(work: Callable[[], Any]) -> Any:
         sys.exit(143)
     except BrokenPipeError:
         sys.exit(1)
+    except OSError as e:  # what the file system refused, where no closer check said it
+        _fail(f"{printable(str(e.filename)) + ': ' if e.filename else ''}"
+              f"{e.strerror or e}")
     except MemoryError as e:  # numpy's names the array it could not allocate
         _fail(f"out of memory ({str(e).splitlines()[0] if str(e) else 'MemoryError'}); "
               "a coarser --resolution or a smaller part of the log needs less")
@@ -149,7 +152,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(allow_dash=True))  # missing: exit 1, from the reader
+@click.argument("log", type=click.Path(allow_dash=True, readable=False))  # checked by the reader
 @click.option("-o", "--output", type=click.Path(path_type=Path),
               help="Output folder [default: ./<log stem>_dynslam].")
 @click.option("--force", is_flag=True,
@@ -372,7 +375,7 @@ def _batch_report(results: list[dict[str, Any]], quiet: bool) -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(allow_dash=True))  # missing: exit 1, from the reader
+@click.argument("log", type=click.Path(allow_dash=True, readable=False))  # checked by the reader
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def info(log: str, format_name: str | None, laser: str, topic: str | None,

@@ -6,6 +6,8 @@ import dataclasses
 import gzip
 import io
 import math
+import os
+import stat
 import struct
 import sys
 import zlib
@@ -94,17 +96,17 @@ class Source:
             self.size = 0
         else:
             p = Path(path)
-            if p.is_dir():
-                self._raw = None  # type: ignore[assignment]
-                self.size = 0
-                self.gzipped = False
-                self.head = b""
-                return
-            try:
+            try:  # stat first: a folder is a bag; a missing or unreadable path says why
+                if stat.S_ISDIR(p.stat().st_mode):
+                    self._raw = None  # type: ignore[assignment]
+                    self.size = 0
+                    self.gzipped = False
+                    self.head = b""
+                    return
                 self._raw = open(p, "rb")  # noqa: SIM115 - closed by close()
+                self.size = os.fstat(self._raw.fileno()).st_size
             except OSError as e:
                 raise InputError(self.name, f"cannot open: {e.strerror}") from None
-            self.size = p.stat().st_size
         magic = self._raw.peek(2)[:2] if hasattr(self._raw, "peek") else b""
         self.gzipped = magic == GZIP_MAGIC or path.endswith(".gz")
         self.head = self._peek_head()
@@ -271,7 +273,10 @@ class ScanGuard(ReaderFilter):
     """A reader's scans as the core may use them, whatever the input: finite time stamp,
     finite and bounded poses, finite beam angles making at most one turn, at most
     ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
-    readings marked invalid. Any other scan is a counted, reported skip."""
+    readings marked invalid. Any other scan is a counted, reported skip. A time stamp that
+    does not increase is a counted warning and the scan is kept in file order: real
+    logs have a few (Radish intel and infinite-corridor), and the corrected Radish logs
+    stamp every scan alike."""
 
     def __init__(self, reader: LogReader, name: str) -> None:
         super().__init__(reader)
@@ -279,6 +284,7 @@ class ScanGuard(ReaderFilter):
 
     def scans(self) -> Iterator[Scan]:
         passed = skipped = 0
+        last = -math.inf
         for scan in self.reader.scans():
             problem = scan_problem(scan)
             if problem is not None:
@@ -286,6 +292,10 @@ class ScanGuard(ReaderFilter):
                 skipped += 1
                 continue
             passed += 1
+            if scan.stamp <= last:
+                self.stats.warn("time stamp does not increase (scan kept in file order)",
+                                scan.source_line)
+            last = max(last, scan.stamp)
             if scan.max_range > MAX_RANGE_M:
                 self.stats.warn(f"max range above {MAX_RANGE_M:g} m capped", scan.source_line)
                 scan = dataclasses.replace(scan, max_range=MAX_RANGE_M)

@@ -128,7 +128,6 @@ class CarmenReader:
         self._params: dict[str, str] = {}
         self._angles: dict[tuple[int, float, float], np.ndarray] = {}
         self._odometry_buffer = OdometryBuffer(self.stats)
-        self._last_stamp = -math.inf
         self._line = 0
         self._ceiling = 0.0  # largest reading where readings contradict the PARAM max range
 
@@ -397,9 +396,6 @@ class CarmenReader:
         if not math.isfinite(stamp):
             self.stats.skip("time stamp is NaN or infinite", line)
             return
-        if stamp <= self._last_stamp:
-            self.stats.warn("time stamp does not increase (scan kept in file order)", line)
-        self._last_stamp = max(self._last_stamp, stamp)
         self.stats.scans += 1
         yield Scan(stamp=stamp, ranges=ranges, angles=angles, max_range=max_range, odom=odom,
                    laser=laser, source_line=line)

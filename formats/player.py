@@ -68,7 +68,6 @@ class PlayerReader:
         self._mount = Pose2D()
         self._buffer = OdometryBuffer(self.stats)
         self._line = 0
-        self._last_stamp = -math.inf
 
     def _fail(self, message: str) -> InputError:
         return InputError(self.source.name, message, self._line)
@@ -207,9 +206,6 @@ class PlayerReader:
             has_odometry = pose is not None
             if pose is None:
                 self.stats.warn("no odometry in the log: stationary motion prior", line)
-            if stamp <= self._last_stamp:
-                self.stats.warn("time stamp does not increase (scan kept in file order)", line)
-            self._last_stamp = max(self._last_stamp, stamp)
             with np.errstate(invalid="ignore"):
                 bad = np.isnan(ranges) | (ranges < 0)
             if bad.any():

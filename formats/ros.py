@@ -18,7 +18,8 @@ definition) give a one-line error naming the file. A LaserScan whose range count
 its angles (``angle_min + (n − 1)·angle_increment`` farther than one increment and 1% of the
 span from ``angle_max``) is a counted skip: which of the two is wrong cannot be told. Non-finite
 angles or stamps, a zero increment and a bad ``range_max`` are skipped by the common guard
-(``dynslam_formats.base``); stamps that go backwards are counted and kept in log order.
+(``dynslam_formats.base``), which also counts stamps that go backwards or repeat (the scans
+are kept in log order).
 """
 
 from __future__ import annotations
@@ -125,7 +126,6 @@ class RosMessages:
         self.mounts: dict[str, Pose2D] = {}
         self.base: str | None = None
         self.tf_odometry = odom_topic is None
-        self._last_stamp = -math.inf
 
     def feed(self, topic: str, msgtype: str, msg: Any) -> Iterator[Scan]:
         """The scans ``msg`` completes. A message without the fields of its type (a log's own
@@ -186,9 +186,6 @@ class RosMessages:
             if pose is None:
                 self.stats.warn("no odometry (nav_msgs/Odometry or TF odom → base) in the "
                                 "log: stationary motion prior")
-            if stamp <= self._last_stamp:
-                self.stats.warn("time stamp does not increase (scan kept in log order)")
-            self._last_stamp = max(self._last_stamp, stamp)
             self.stats.scans += 1
             yield Scan(stamp, ranges, angles, max_range, pose or Pose2D(),
                        self.mounts.get(frame_id, Pose2D()), 0, pose is not None)

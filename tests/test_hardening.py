@@ -6,6 +6,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -246,3 +247,52 @@ def test_sigterm_at_any_moment_ends_143_and_leaves_nothing(tmp_path, delay):
     assert proc.returncode in (143, -signal.SIGTERM), err
     assert b"Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def _as_unprivileged(tmp_path):
+    """A folder and a command prefix to run the CLI where permissions hold: as is for a
+    normal user; as ``nobody`` (with setpriv, in a folder it may enter) when the tests run
+    as root, who may read anything."""
+    if os.geteuid() != 0:
+        return tmp_path, [sys.executable]
+    if shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv to drop the privileges")
+    base = tmp_path / "shared"
+    base.mkdir()
+    for p in base.parents:  # nobody must reach it (pytest's tmp folders are 700)
+        os.chmod(p, os.stat(p).st_mode | 0o011)
+    os.chmod(base, 0o777)
+    prefix = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable]
+    if subprocess.run([*prefix, "-c", "import dynslam_cli"], capture_output=True).returncode:
+        pytest.skip("the unprivileged user cannot run dynslam from here")
+    return base, prefix
+
+
+@pytest.mark.parametrize("command", ["process", "info", "batch"])
+def test_an_unreadable_log_or_folder_is_one_line_with_the_reason(tmp_path, command):
+    base, python = _as_unprivileged(tmp_path)
+    closed = base / "closed"
+    closed.mkdir()
+    log = closed / "hall.log"
+    log.write_bytes(SAMPLE.read_bytes())
+    os.chmod(closed, 0)
+    target = closed if command == "batch" else log
+    out = ["-o", str(base / "out"), "-q"] if command != "info" else []
+    r = subprocess.run([*python, "-m", "dynslam_cli", command, str(target), *out],
+                       capture_output=True, text=True)
+    os.chmod(closed, 0o755)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.count("\n") == 1 and "Permission denied" in r.stderr, r.stderr
+    assert "does not exist" not in r.stderr and not (base / "out").exists()
+
+
+def test_an_output_folder_it_may_not_write_is_one_line(tmp_path):
+    base, python = _as_unprivileged(tmp_path)
+    locked = base / "locked"
+    locked.mkdir(mode=0o555)
+    for command in ("process", "batch"):
+        r = subprocess.run([*python, "-m", "dynslam_cli", command, str(SAMPLE), "-o",
+                            str(locked / "out"), "-q"], capture_output=True, text=True)
+        assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
+        assert "Permission denied" in r.stderr and "Traceback" not in r.stderr
+    assert list(locked.iterdir()) == []
