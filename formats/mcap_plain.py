@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Any, ClassVar
 
-from dynslam_cli.errors import InputError
+from dynslam_cli.errors import InputError, printable
 from dynslam_cli.types import Scan
 from dynslam_formats.base import ReaderOptions, ReadStats, Source, container_errors
 from dynslam_formats.ros import MCAP_MAGIC, TF_TYPES, RosMessages, choose_topics
@@ -67,7 +67,11 @@ class McapReader:
         counts = summary.statistics.channel_message_counts if summary.statistics else {}
         types, channels = {}, {}
         for cid, ch in summary.channels.items():
-            schema = summary.schemas[ch.schema_id]
+            schema = summary.schemas.get(ch.schema_id)
+            if schema is None:  # (a damaged summary)
+                raise InputError(self.source.name, f"cannot read this MCAP file: channel "
+                                 f"{printable(ch.topic)} names schema {ch.schema_id}, which "
+                                 "the file does not hold")
             types[ch.topic] = _normalised(schema.name)
             channels[ch.topic] = (types[ch.topic], counts.get(cid, 0))
             self.stats.records[f"{ch.topic} ({types[ch.topic]})"] += counts.get(cid, 0)

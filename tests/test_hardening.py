@@ -296,3 +296,21 @@ def test_an_output_folder_it_may_not_write_is_one_line(tmp_path):
         assert r.returncode == 1 and r.stderr.count("\n") == 1, r.stderr
         assert "Permission denied" in r.stderr and "Traceback" not in r.stderr
     assert list(locked.iterdir()) == []
+
+
+def test_mcap_channel_naming_a_missing_schema_is_one_line(cli, tmp_path):
+    """Found by the coverage-guided campaign (bench/fuzz.py): a damaged summary whose channel
+    refers to a schema the file does not hold was a KeyError traceback."""
+    from mcap.writer import Writer
+
+    log = tmp_path / "damaged.mcap"
+    with open(log, "wb") as f:
+        w = Writer(f)
+        w.start()
+        channel = w.register_channel(topic="/scan", message_encoding="ros1", schema_id=7)
+        w.add_message(channel, log_time=1, data=b"xx", publish_time=1)
+        w.finish()
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert "channel /scan names schema 7, which the file does not hold" in r.stderr
+    assert not (tmp_path / "out").exists()
