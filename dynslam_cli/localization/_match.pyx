@@ -16,6 +16,9 @@ from libc.stdlib cimport calloc, free, malloc, realloc
 ctypedef unsigned char u8
 
 
+MAX_BUCKETS_PER_SIDE = 1024
+
+
 cdef class PointIndex:
     """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
     bound (fastest when the bound is about the cell size: 3×3 buckets are searched)."""
@@ -39,6 +42,11 @@ cdef class PointIndex:
         else:
             self.x0 = float(np.min(self.points[:, 0]))
             self.y0 = float(np.min(self.points[:, 1]))
+            # At most MAX_BUCKETS_PER_SIDE buckets a side, whatever the points' spread (a
+            # log's odometry jump): the answers do not depend on the bucket size, and the
+            # buckets' memory and a search's rings stay bounded.
+            spread = max(np.max(self.points[:, 0]) - self.x0, np.max(self.points[:, 1]) - self.y0)
+            self.cell = cell = max(cell, spread / MAX_BUCKETS_PER_SIDE)
             self.nx = <Py_ssize_t>floor((np.max(self.points[:, 0]) - self.x0) / cell) + 1
             self.ny = <Py_ssize_t>floor((np.max(self.points[:, 1]) - self.y0) / cell) + 1
         bucket = np.empty(n, dtype=np.intp)
