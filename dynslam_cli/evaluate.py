@@ -471,8 +471,8 @@ def snapshots_at(scans: Iterable[Scan], config: Config, times: list[float]
     last = 0.0
     for scan in scans:
         while pending and scan.stamp >= pending[0]:
-            snaps.append((pending.pop(0), slam.grids.snapshot("static"),
-                          slam.grids.snapshot("dynamic")))
+            snaps.append((pending.pop(0), slam.grids.snapshot("static").dense(),
+                          slam.grids.snapshot("dynamic").dense()))
         slam.step(scan)
         last = scan.stamp
     snaps.append((last + 1.0, slam.grids.snapshot("static"), slam.grids.snapshot("dynamic")))

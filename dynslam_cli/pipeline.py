@@ -61,6 +61,8 @@ class SlamResult:
     landmarks: list[Landmark] = field(default_factory=list)
     localization: dict[str, int] = field(default_factory=dict)
     """Counts for the summary: scan matches, fallbacks, graph nodes, loop closures."""
+    grid_memory: dict[str, float] = field(default_factory=dict)
+    """What the final grids hold: tiles, cells stored and seen, bytes per cell seen."""
 
 
 class ScanStore:
@@ -203,6 +205,7 @@ class DynamicSlam:
         trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
         mapper = DynamicMapper(self.config)
         mapper.grids.reserve_like(self.mapper.grids)
+        self.mapper = mapper  # (the online maps are let go before the new ones fill)
         n = len(trajectory)
         for i, ((_, x, y, th), scan) in enumerate(zip(trajectory, self._store.scans(),
                                                       strict=True)):
@@ -228,6 +231,7 @@ class DynamicSlam:
             trajectory=trajectory,
             landmarks=self.landmarks(mapper),
             localization=self.counts(),
+            grid_memory=mapper.grids.memory(),
         )
 
     def counts(self) -> dict[str, int]:

@@ -16,6 +16,7 @@ the right side of the thresholds, so both files load to the same classes.
 from __future__ import annotations
 
 import math
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from PIL import Image
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.mapping.grid import OccupancyMap
+from dynslam_formats.png import PgmWriter, PngWriter
 
 FREE_PIXEL, UNKNOWN_PIXEL, OCCUPIED_PIXEL = 254, 205, 0
 TRINARY_FREE_THRESH, TRINARY_OCCUPIED_THRESH = 0.1, 0.9  # 254 → 0.004, 205 → 0.196, 0 → 1
@@ -82,15 +84,22 @@ def write_map(folder: Path, name: str, grid: OccupancyMap, free_thresh: float,
               occupied_thresh: float, probabilities: bool = False) -> None:
     """Write ``folder/name.pgm`` + ``name.yaml`` (trinary), and with ``probabilities`` also
     ``name_prob.png`` + ``name_prob.yaml`` (scale, alpha = unknown)."""
-    free, occupied = classes(grid.prob, free_thresh, occupied_thresh)
-    Image.fromarray(trinary_pixels(free, occupied), mode="L").save(folder / f"{name}.pgm")
+    rows, cols = grid.shape
+    with ExitStack() as files:  # one pass over the map, a band of rows at a time
+        pgm = PgmWriter(files.enter_context(open(folder / f"{name}.pgm", "wb")), cols, rows)
+        png = (PngWriter(files.enter_context(open(folder / f"{name}_prob.png", "wb")), cols,
+                         rows, channels=2) if probabilities else None)
+        for _, prob in grid.bands(from_top=True):
+            free, occupied = classes(prob, free_thresh, occupied_thresh)
+            pgm.add(trinary_pixels(free, occupied))
+            if png is not None:
+                png.add(scale_pixels(prob, free, occupied, free_thresh, occupied_thresh))
+        if png is not None:
+            png.finish()
     (folder / f"{name}.yaml").write_text(
         _yaml(f"{name}.pgm", "trinary", grid, TRINARY_FREE_THRESH, TRINARY_OCCUPIED_THRESH),
         encoding="utf-8")
     if probabilities:
-        grey_alpha = scale_pixels(grid.prob, free, occupied, free_thresh, occupied_thresh)
-        Image.fromarray(grey_alpha, mode="LA").save(folder / f"{name}_prob.png",
-                                                    optimize=False, compress_level=1)
         (folder / f"{name}_prob.yaml").write_text(
             _yaml(f"{name}_prob.png", "scale", grid, free_thresh, occupied_thresh),
             encoding="utf-8")

@@ -199,8 +199,9 @@ def write_results(folder: Path, result: SlamResult, config: Config,
     write_map(folder, "static", result.static, m.free_threshold, m.occupied_threshold,
               probabilities=True)
     write_map(folder, "dynamic", result.dynamic, m.free_threshold, m.occupied_threshold)
-    write_picture(folder / "map.png", result.static, result.dynamic, result.trajectory,
-                  result.landmarks, m.occupied_threshold)
+    summary.setdefault("map", {})["picture_pixels_per_cell"] = write_picture(
+        folder / "map.png", result.static, result.dynamic, result.trajectory, result.landmarks,
+        m.occupied_threshold)
     with open(folder / "landmarks.csv", "w", encoding="utf-8", newline="") as f:
         write_landmarks(f, result.landmarks)
     with open(folder / "trajectory.tum", "w", encoding="utf-8", newline="\n") as f:

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from dynslam_cli.mapping.grid import OccupancyMap
+from dynslam_cli.mapping.grid import BAND_ROWS, OccupancyMap
 from dynslam_cli.pipeline import Landmark
 
 DYNAMIC_RGB = (220, 30, 30)
@@ -25,6 +25,7 @@ INK_RGB = (0, 0, 0)
 
 MIN_PICTURE_PX = 800  # map.png is upscaled (whole pixels per cell) to at least this size
 MAX_UPSCALE = 8
+MAX_PICTURE_PX = 4096  # and shrunk (whole cells per pixel) to at most this size
 WALL_QUANTILE = 0.005
 MARGIN_M = 1.0  # map.png shows the walls, path and landmarks with this much around them
 NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
@@ -32,23 +33,39 @@ NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 
 def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
            landmarks: Sequence[Landmark], occupied_thresh: float,
-           window: tuple[int, int, int, int] | None = None, scale: int = 1) -> Image.Image:
+           window: tuple[int, int, int, int] | None = None, scale: int = 1,
+           shrink: int = 1) -> Image.Image:
     """The S ∪ D picture, north up: ``window`` (col0, row0, col1, row1, cells; default the
-    whole grid), ``scale`` pixels per cell; the path and landmarks drawn at that scale."""
-    rows, cols = static.prob.shape
+    whole grid), ``scale`` pixels per cell, or one pixel per ``shrink`` × ``shrink`` cells
+    (the darkest of them, red if any is dynamic: walls and movers stay visible); the path
+    and landmarks drawn at that scale."""
+    rows, cols = static.shape
     c0, r0, c1, r1 = window or (0, 0, cols, rows)
-    grey = np.rint(255.0 * (1.0 - static.prob[r0:r1, c0:c1])).astype(np.uint8)
-    rgb = np.repeat(grey[:, :, None], 3, axis=2)
-    rgb[dynamic.prob[r0:r1, c0:c1] > occupied_thresh] = DYNAMIC_RGB
-    image = Image.fromarray(np.ascontiguousarray(rgb[::-1]), mode="RGB")
+    k = shrink
+    height, width = -(-(r1 - r0) // k), -(-(c1 - c0) // k)
+    rgb = np.empty((height, width, 3), np.uint8)  # (row 0 = top)
+    step = BAND_ROWS - BAND_ROWS % k
+    for top in range(r0, r1, step):  # a band of rows at a time: the map is never held whole
+        bottom = min(top + step, r1)
+        grey = np.rint(255.0 * (1.0 - static.band(top, bottom)[:, c0:c1])).astype(np.uint8)
+        moving = dynamic.band(top, bottom)[:, c0:c1] > occupied_thresh
+        if k > 1:
+            grey, moving = _block(grey, k, 255, np.minimum), _block(moving, k, False, np.maximum)
+        first = height - (top - r0) // k - len(grey)  # image rows run from the top
+        band = rgb[first:first + len(grey)]
+        band[:] = grey[::-1, :, None]
+        band[moving[::-1]] = DYNAMIC_RGB
+    image = Image.fromarray(rgb, mode="RGB")
+    del rgb
     if scale > 1:
         image = image.resize((image.width * scale, image.height * scale), Image.NEAREST)
     draw = ImageDraw.Draw(image)
     res = static.resolution
+    px_per_cell = scale / k
 
     def pixel(x: float, y: float) -> tuple[float, float]:
-        return (((x - static.origin_x) / res - c0) * scale,
-                (r1 - (y - static.origin_y) / res) * scale)
+        return (((x - static.origin_x) / res - c0) * px_per_cell,
+                (r0 + height * k - (y - static.origin_y) / res) * px_per_cell)
 
     if len(trajectory) > 1:
         draw.line([pixel(x, y) for x, y in trajectory[:, 1:3]], fill=TRAJECTORY_RGB,
@@ -60,14 +77,25 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
     return image
 
 
+def _block(a: np.ndarray, k: int, fill: Any, reduce: Any) -> np.ndarray:
+    """``a`` reduced over k × k blocks (padded with ``fill`` to whole blocks)."""
+    h, w = -(-a.shape[0] // k) * k, -(-a.shape[1] // k) * k
+    padded = np.full((h, w), fill, a.dtype)
+    padded[:a.shape[0], :a.shape[1]] = a
+    return reduce.reduce(reduce.reduce(padded.reshape(h // k, k, w // k, k), axis=3), axis=1)
+
+
 def content_window(static: OccupancyMap, trajectory: np.ndarray, landmarks: Sequence[Landmark],
                    occupied_thresh: float, margin_m: float = MARGIN_M
                    ) -> tuple[int, int, int, int]:
     """Cells (col0, row0, col1, row1) around the walls, the path and the landmarks: free
     space cleared only by long no-return beams far beyond the walls is left out, and so are
     the farthest ``WALL_QUANTILE`` of occupied cells on each side (stray far readings)."""
-    rows, cols = static.prob.shape
-    occ_r, occ_c = np.nonzero(static.prob > occupied_thresh)
+    rows, cols = static.shape
+    found = [(r0 + r, c) for r0, band in static.bands()
+             for r, c in [np.nonzero(band > occupied_thresh)]]
+    occ_r = np.concatenate([r for r, _ in found]) if found else np.zeros(0, np.intp)
+    occ_c = np.concatenate([c for _, c in found]) if found else np.zeros(0, np.intp)
     if len(occ_r):
         occ_r = np.quantile(occ_r, [WALL_QUANTILE, 1 - WALL_QUANTILE])
         occ_c = np.quantile(occ_c, [WALL_QUANTILE, 1 - WALL_QUANTILE])
@@ -94,7 +122,7 @@ def _metres(v: float) -> str:
 
 
 def annotate(image: Image.Image, static: OccupancyMap, window: tuple[int, int, int, int],
-             scale: int) -> Image.Image:
+             scale: float) -> Image.Image:
     """The picture framed: metre ticks (map frame) on the left and bottom, a scale bar and a
     legend below."""
     font = ImageFont.load_default()
@@ -142,21 +170,34 @@ def annotate(image: Image.Image, static: OccupancyMap, window: tuple[int, int, i
     return canvas.crop((0, 0, canvas.width, min(canvas.height, y + 18)))
 
 
-def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
-                landmarks: Sequence[Landmark], occupied_thresh: float) -> Image.Image:
-    """map.png: the part of S ∪ D with something in it, upscaled when small, framed."""
-    window = content_window(static, trajectory, landmarks, occupied_thresh)
+def picture_scale(window: tuple[int, int, int, int]) -> tuple[int, int]:
+    """(pixels per cell, cells per pixel) of map.png for a window of cells: upscaled by
+    whole pixels to about ``MIN_PICTURE_PX`` when small, shrunk by whole cells to at most
+    ``MAX_PICTURE_PX`` when large."""
     size = max(window[2] - window[0], window[3] - window[1], 1)
-    scale = max(1, min(MAX_UPSCALE, MIN_PICTURE_PX // size))
-    image = render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale)
-    return annotate(image, static, window, scale)
+    return max(1, min(MAX_UPSCALE, MIN_PICTURE_PX // size)), -(-size // MAX_PICTURE_PX)
+
+
+def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
+                landmarks: Sequence[Landmark], occupied_thresh: float
+                ) -> tuple[Image.Image, float]:
+    """map.png: the part of S ∪ D with something in it, upscaled when small (shrunk when
+    very large), framed; and its pixels per cell."""
+    window = content_window(static, trajectory, landmarks, occupied_thresh)
+    scale, shrink = picture_scale(window)
+    image = render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale,
+                   shrink)
+    return annotate(image, static, window, scale / shrink), scale / shrink
 
 
 def write_picture(path: Path, static: OccupancyMap, dynamic: OccupancyMap,
                   trajectory: np.ndarray, landmarks: Sequence[Landmark],
-                  occupied_thresh: float) -> None:
-    map_picture(static, dynamic, trajectory, landmarks, occupied_thresh).save(
-        path, optimize=False, compress_level=1)  # a third of the default's time
+                  occupied_thresh: float) -> float:
+    """Write map.png; returns its pixels per cell."""
+    image, pixels_per_cell = map_picture(static, dynamic, trajectory, landmarks,
+                                         occupied_thresh)
+    image.save(path, optimize=False, compress_level=1)  # a third of the default's time
+    return pixels_per_cell
 
 
 class SnapshotWriter:
@@ -184,7 +225,7 @@ class SnapshotWriter:
         s = result.static
         path = self.folder / f"t{stamp:012.3f}.png"
         render(s, result.dynamic, result.trajectory, result.landmarks, self.threshold).save(path)
-        h, w = s.prob.shape
+        h, w = s.shape
         self.frames.append((path, s.origin_x, s.origin_y, w, h))
 
     def finish(self, result: Any) -> None:

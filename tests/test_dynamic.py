@@ -19,9 +19,8 @@ from dynslam_cli.mapping.dynamic import (
     InverseModel,
     classify_neighbourhood,
     classify_static,
-    neighbourhood_offsets,
 )
-from dynslam_cli.mapping.grid import logit
+from dynslam_cli.mapping.grid import GridStack, logit
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.types import Pose2D, Scan
 
@@ -53,18 +52,22 @@ def test_classify_static_thresholds():
 
 def test_neighbourhood_rule():
     # 5×5 static map: a wall in column 3 (Occupied), everything else Free, one Unknown cell.
+    g = GridStack(1.0, 1.0, ("static",))
+    g.observe(Pose2D(0.5, 0.5, 0.0), np.array([4.0]), np.array([0.0]), 1e3, 0.1, 1e3)
     s = np.full((5, 5), logit(0.02))
     s[:, 3] = logit(0.98)
     s[0, 0] = 0.0
-    flat = s.reshape(-1)
-    off0, off1 = neighbourhood_offsets(0, 5), neighbourhood_offsets(1, 5)
-    beside_wall = np.array([2 * 5 + 2])  # one cell off the wall
-    open_space = np.array([2 * 5 + 1])
-    near_unknown = np.array([1 * 5 + 1])
-    assert classify_neighbourhood(flat, beside_wall, off0, 0.1, 0.9)[0] == FREE
-    assert classify_neighbourhood(flat, beside_wall, off1, 0.1, 0.9)[0] == OCCUPIED
-    assert classify_neighbourhood(flat, open_space, off1, 0.1, 0.9)[0] == FREE
-    assert classify_neighbourhood(flat, near_unknown, off1, 0.1, 0.9)[0] == UNKNOWN
+    rows, cols = np.divmod(np.arange(25), 5)
+    g.layers["static"][g.flat_cells(rows, cols)] = s.reshape(-1)  # (all in the first tile)
+
+    def at(r: int, c: int) -> np.ndarray:
+        return g.flat_cells(np.array([r]), np.array([c]))
+
+    beside_wall, open_space, near_unknown = at(2, 2), at(2, 1), at(1, 1)
+    assert classify_neighbourhood(g, beside_wall, 0, 0.1, 0.9)[0] == FREE
+    assert classify_neighbourhood(g, beside_wall, 1, 0.1, 0.9)[0] == OCCUPIED
+    assert classify_neighbourhood(g, open_space, 1, 0.1, 0.9)[0] == FREE
+    assert classify_neighbourhood(g, near_unknown, 1, 0.1, 0.9)[0] == UNKNOWN
 
 
 def _scan(r: float, t: float) -> Scan:
@@ -80,8 +83,8 @@ STILL = EkfConfig(localization="odometry")
 def _cell(slam: DynamicSlam, layer: str, x: float, y: float) -> float:
     g = slam.grids
     r = slam.config.map.resolution_m
-    row, col = int(np.floor(y / r)) - g.origin_row, int(np.floor(x / r)) - g.origin_col
-    p = g.layers[layer][row, col]
+    flat = g.flat_cells(np.array([int(np.floor(y / r))]), np.array([int(np.floor(x / r))]))
+    p = g.layers[layer][flat[0]] if flat[0] >= 0 else 0.0
     return float(1 / (1 + np.exp(-p)))
 
 

@@ -55,11 +55,15 @@ def test_traced_cells_match_sampling_each_beam_every_cell():
     assert len(np.unique(obs.hit)) == len(obs.hit)
     assert not set(obs.free) & set(obs.hit)
 
-    res, cols = g.resolution, g.shape[1]
+    res = g.resolution
 
-    def cell(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return ((np.floor(y / res).astype(int) - g.origin_row) * cols
-                + np.floor(x / res).astype(int) - g.origin_col)
+    def cell(x: np.ndarray, y: np.ndarray) -> list[tuple[int, int]]:
+        return list(zip(np.floor(y / res).astype(int).tolist(),
+                        np.floor(x / res).astype(int).tolist(), strict=True))
+
+    def world(flat: np.ndarray) -> set[tuple[int, int]]:
+        rows, cols = g.world_cells(flat)
+        return set(zip(rows.tolist(), cols.tolist(), strict=True))
 
     a = angles + sensor.theta
     hit_beam = np.isfinite(ranges) & (ranges < 30.0)
@@ -72,11 +76,12 @@ def test_traced_cells_match_sampling_each_beam_every_cell():
         length = max(r - res, 0.0) if is_hit else 8.0
         d = np.arange(math.ceil(length / res)) * res
         free |= set(cell(sensor.x + d * math.cos(ang), sensor.y + d * math.sin(ang)))
-    assert set(obs.hit) == hits
+    assert world(obs.hit) == hits
     # the kernel steps in cell units from the sensor's cell position; a sample exactly on a
     # cell border may round the other way, so allow a handful of such cells
-    assert len(set(obs.free) ^ (free - hits)) <= 0.002 * len(free)
-    assert g.seen.reshape(-1)[obs.free].all() and g.seen.reshape(-1)[obs.hit].all()
+    assert len(world(obs.free) ^ (free - hits)) <= 0.002 * len(free)
+    assert g.seen[obs.free].all() and g.seen[obs.hit].all()
+    assert g.memory()["tiles"] > 1  # the scan spans several tiles
 
 
 def test_mean_scores_match_numpy():

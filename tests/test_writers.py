@@ -129,8 +129,49 @@ def test_map_picture_is_cropped_upscaled_and_framed():
     traj = np.array([[0.0, 0.5, 0.5, 0.0], [1.0, 3.5, 1.5, 0.0]])
     c0, r0, c1, r1 = content_window(static, traj, [], 0.9)
     assert (c0, r0) == (380, 380) and (c1, r1) == (501, 461)  # the room and a metre around
-    image = map_picture(static, dynamic, traj, [Landmark(0, 0.0, 0.0, "convex", "static", 3)],
+    image, _ = map_picture(static, dynamic, traj, [Landmark(0, 0.0, 0.0, "convex", "static", 3)],
                         0.9)
     assert image.width >= MIN_PICTURE_PX * 0.9  # 121 cells at 6 px each, plus the frame
     colours = {c for _, c in image.getcolors(maxcolors=1 << 16)}
     assert DYNAMIC_RGB in colours and LANDMARK_RGB["dynamic"] in colours  # the legend
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3])
+def test_streamed_png_and_pgm_read_back_as_written(tmp_path, channels):
+    from dynslam_formats.png import PgmWriter, PngWriter
+
+    rng = np.random.default_rng(channels)
+    shape = (301, 77) if channels == 1 else (301, 77, channels)
+    pixels = rng.integers(0, 256, shape, dtype=np.uint8)
+    pixels[100:200] = 7  # runs, as maps have
+    with open(tmp_path / "a.png", "wb") as f:
+        png = PngWriter(f, 77, 301, channels)
+        for top in range(0, 301, 64):  # bands of rows, from the top
+            png.add(pixels[top:top + 64])
+        png.finish()
+    with Image.open(tmp_path / "a.png") as im:
+        im.load()
+        assert im.mode == {1: "L", 2: "LA", 3: "RGB"}[channels]
+        np.testing.assert_array_equal(np.asarray(im), pixels)
+    if channels == 1:
+        with open(tmp_path / "a.pgm", "wb") as f:
+            pgm = PgmWriter(f, 77, 301)
+            pgm.add(pixels[:150])
+            pgm.add(pixels[150:])
+        Image.fromarray(pixels, mode="L").save(tmp_path / "pil.pgm")
+        assert (tmp_path / "a.pgm").read_bytes() == (tmp_path / "pil.pgm").read_bytes()
+
+
+def test_a_very_large_map_picture_is_shrunk_keeping_walls():
+    from dynslam_formats.picture import MAX_PICTURE_PX, map_picture
+
+    prob = np.full((300, 9000), 0.02)  # a 450 m corridor of 0.05 m cells
+    prob[[10, 290], :] = 1.0  # its walls, one cell thick
+    static = OccupancyMap(prob, 0.05, 0.0, 0.0)
+    dynamic = OccupancyMap(np.full_like(prob, 0.5), 0.05, 0.0, 0.0)
+    traj = np.array([[0.0, 1.0, 7.5, 0.0], [1.0, 449.0, 7.5, 0.0]])
+    image, pixels_per_cell = map_picture(static, dynamic, traj, [], 0.9)
+    assert pixels_per_cell == 1 / 3 and image.width <= MAX_PICTURE_PX + 100
+    grey = np.asarray(image.convert("L"))[10:110, 56:56 + 3000]  # the map inside the frame
+    dark_rows = np.flatnonzero((grey == 0).mean(axis=1) > 0.9)
+    assert list(dark_rows) == [3, 96]  # both one-cell walls survive the shrinking

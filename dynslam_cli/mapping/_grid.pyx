@@ -30,9 +30,70 @@ cdef inline double beam_length(double r, double min_range, double max_range, dou
     return 0.0
 
 
-cdef inline Py_ssize_t flat_cell(double x, double y, double res, Py_ssize_t row0,
-                                 Py_ssize_t col0, Py_ssize_t cols) noexcept nogil:
-    return (<Py_ssize_t>floor(y / res) - row0) * cols + (<Py_ssize_t>floor(x / res) - col0)
+# -- tiles: the grid's cells are stored by the area seen ----------------------------------
+# A tile is TILE × TILE cells. World cell (R, C) (floor of y / res, x / res) lies in tile
+# (R >> SHIFT, C >> SHIFT) at (R & MASK, C & MASK); its flat index in every layer is
+# tile id · TILE² + (R & MASK) · TILE + (C & MASK). ``table`` holds the tile id of each tile
+# of the grid's extent (-1: not stored yet), ``table[(TR - tr0) * tcols + (TC - tc0)]``.
+
+cdef enum:
+    SHIFT = 6
+    TILE = 64  # 1 << SHIFT
+    MASK = 63
+TILE_SIDE = TILE
+
+cdef struct Tiles:
+    int* table
+    Py_ssize_t tr0, tc0, trows, tcols
+    int* tile_row  # world tile row and column of each stored tile
+    int* tile_col
+    Py_ssize_t count, capacity
+    Py_ssize_t last_key  # one-tile cache: beams run on through the same tile
+    Py_ssize_t last_id
+
+
+cdef inline Py_ssize_t tile_of(Tiles* t, Py_ssize_t R, Py_ssize_t C, bint grow) noexcept nogil:
+    """Tile id of world cell (R, C); a new tile if ``grow`` and room is left, else -1 (not
+    stored, or no room: the caller tells them apart by ``t.count == t.capacity``)."""
+    cdef Py_ssize_t tr = (R >> SHIFT) - t.tr0, tc = (C >> SHIFT) - t.tc0, key, tid
+    if tr < 0 or tc < 0 or tr >= t.trows or tc >= t.tcols:
+        return -1
+    key = tr * t.tcols + tc
+    if key == t.last_key:
+        return t.last_id
+    tid = t.table[key]
+    if tid < 0:
+        if not grow or t.count == t.capacity:
+            return -1
+        tid = t.count
+        t.count += 1
+        t.table[key] = <int>tid
+        t.tile_row[tid] = <int>(R >> SHIFT)
+        t.tile_col[tid] = <int>(C >> SHIFT)
+    t.last_key = key
+    t.last_id = tid
+    return tid
+
+
+cdef inline Py_ssize_t cell_in(Py_ssize_t tid, Py_ssize_t R, Py_ssize_t C) noexcept nogil:
+    return (tid << (2 * SHIFT)) + ((R & MASK) << SHIFT) + (C & MASK)
+
+
+cdef Tiles tiles_view(int[::1] table, Py_ssize_t tr0, Py_ssize_t tc0, Py_ssize_t tcols,
+                      int[::1] tile_row, int[::1] tile_col, Py_ssize_t count):
+    cdef Tiles t
+    t.table = &table[0]  # (no reads while trows is 0)
+    t.tr0 = tr0
+    t.tc0 = tc0
+    t.tcols = tcols
+    t.trows = table.shape[0] // tcols if tcols else 0
+    t.tile_row = &tile_row[0]
+    t.tile_col = &tile_col[0]
+    t.count = count
+    t.capacity = tile_row.shape[0]
+    t.last_key = -1
+    t.last_id = -1
+    return t
 
 
 def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
@@ -53,23 +114,32 @@ def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
     return x0, y0, x1, y1
 
 
-def trace_beams(u8[::1] seen, int[::1] listed, int mark, Py_ssize_t cols, double res,
-                Py_ssize_t row0, Py_ssize_t col0, double sx, double sy, double sth,
-                const double[::1] ranges, const double[::1] angles, double min_range,
-                double max_range, double cap):
-    """(free cells, hit cells) of one scan from the sensor pose (see GridStack.observe): each
-    hit's end cell, and the cells sampled every ``res`` along each beam up to one cell short
-    of a hit (to the cap for no return), less any cell hit; each cell listed once, which
-    ``listed[cell] = mark`` records (``mark``: a value no earlier scan used). Marks them in
-    ``seen``. The grid must hold every beam's extent (beam_extent)."""
-    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, u, v
+def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize_t tr0,
+                Py_ssize_t tc0, Py_ssize_t tcols, int[::1] tile_row, int[::1] tile_col,
+                Py_ssize_t count, double res, Py_ssize_t row0, Py_ssize_t col0, double sx,
+                double sy, double sth, const double[::1] ranges, const double[::1] angles,
+                double min_range, double max_range, double cap):
+    """(free cells, hit cells, tiles stored) of one scan from the sensor pose (see
+    GridStack.observe): each hit's end cell, and the cells sampled every ``res`` along each
+    beam up to one cell short of a hit (to the cap for no return), less any cell hit; each
+    cell listed once, which ``listed[cell] = mark`` records (``mark``: a value no earlier
+    scan since the last reset used). Marks them in ``seen``, and stores the tiles they fall
+    in (the first ``count`` of ``tile_row``/``tile_col`` are in use). Samples step in cells
+    from the sensor's position relative to cell (row0, col0), the grid extent's corner,
+    which must hold every beam's extent (beam_extent). Free and hit are None when the tile
+    arrays ran out of room: grow them and call again."""
+    cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, tid
+    cdef Py_ssize_t R, C
     cdef double length, ca, sa, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
-    cdef bint hit_i, new
+    cdef bint hit_i, new, full = False
+    cdef Tiles t = tiles_view(table, tr0, tc0, tcols, tile_row, tile_col, count)
     steps = np.zeros(n, dtype=np.intp)
     dirs = np.zeros((n, 2))
-    cells = np.full(n, -1, dtype=np.intp)
+    ends = np.zeros((n, 2), dtype=np.intp)
+    is_hit = np.zeros(n, dtype=np.uint8)
     cdef Py_ssize_t[::1] cnt = steps
-    cdef Py_ssize_t[::1] end = cells
+    cdef Py_ssize_t[:, ::1] end = ends
+    cdef u8[::1] eh = is_hit
     cdef double[:, ::1] dv = dirs
     for i in range(n):
         length = beam_length(ranges[i], min_range, max_range, cap, &hit_i)
@@ -80,7 +150,9 @@ def trace_beams(u8[::1] seen, int[::1] listed, int mark, Py_ssize_t cols, double
         dv[i, 0] = ca
         dv[i, 1] = sa
         if hit_i:
-            end[i] = flat_cell(sx + length * ca, sy + length * sa, res, row0, col0, cols)
+            eh[i] = 1
+            end[i, 0] = <Py_ssize_t>floor((sy + length * sa) / res)
+            end[i, 1] = <Py_ssize_t>floor((sx + length * ca) / res)
             length = max(length - res, 0.0)
         cnt[i] = <Py_ssize_t>ceil(length / res)
         total += cnt[i]
@@ -90,48 +162,91 @@ def trace_beams(u8[::1] seen, int[::1] listed, int mark, Py_ssize_t cols, double
     cdef Py_ssize_t[::1] fv = free
     with nogil:
         for i in range(n):
-            c = end[i]
-            if c >= 0 and listed[c] != mark:
+            if not eh[i]:
+                continue
+            tid = tile_of(&t, end[i, 0], end[i, 1], True)
+            if tid < 0:
+                full = True
+                break
+            c = cell_in(tid, end[i, 0], end[i, 1])
+            if listed[c] != mark:
                 listed[c] = mark
                 seen[c] = 1
                 hv[nh] = c
                 nh += 1
         for i in range(n):
+            if full:
+                break
             ca = dv[i, 0]
             sa = dv[i, 1]
-            for k in range(cnt[i]):  # inside the grid: truncation is floor
-                v = <Py_ssize_t>(v0 + k * sa)
-                u = <Py_ssize_t>(u0 + k * ca)
-                c = v * cols + u
+            for k in range(cnt[i]):  # inside the extent: truncation is floor
+                R = <Py_ssize_t>(v0 + k * sa) + row0
+                C = <Py_ssize_t>(u0 + k * ca) + col0
+                tid = tile_of(&t, R, C, True)
+                if tid < 0:
+                    full = True
+                    break
+                c = cell_in(tid, R, C)
                 new = listed[c] != mark  # branch-free: about half the samples are new
                 listed[c] = mark
                 seen[c] = 1
                 fv[nf] = c
                 nf += new
-    return free[:nf], hit[:nh]
+    if full:
+        return None, None, t.count
+    return free[:nf], hit[:nh], t.count
 
 
-def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells,
-                   const Py_ssize_t[::1] offsets, double low, double high):
-    """State of each cell's window (cell + offsets): 2 Occupied if any value > high, 0 Free
-    if every value < low, else 1 Unknown (log-odds thresholds)."""
-    cdef Py_ssize_t n = cells.shape[0], m = offsets.shape[0], i, k
+cdef inline int window_state(const float* logodds, Tiles* t, Py_ssize_t R, Py_ssize_t C,
+                             Py_ssize_t radius, double low, double high) noexcept nogil:
+    """2 Occupied if any cell of the window around world cell (R, C) is > high, 0 Free if
+    every one is < low, else 1 Unknown; cells not stored count 0 (p = 0.5)."""
+    cdef Py_ssize_t dr, dc, tid
     cdef double v
-    cdef bint occupied, free
+    cdef bint free = True
+    for dr in range(-radius, radius + 1):
+        for dc in range(-radius, radius + 1):
+            tid = tile_of(t, R + dr, C + dc, False)
+            v = logodds[cell_in(tid, R + dr, C + dc)] if tid >= 0 else 0.0
+            if v > high:
+                return 2
+            if not v < low:
+                free = False
+    return 0 if free else 1
+
+
+def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells, Py_ssize_t radius,
+                   int[::1] table, Py_ssize_t tr0, Py_ssize_t tc0, Py_ssize_t tcols,
+                   int[::1] tile_row, int[::1] tile_col, Py_ssize_t count, double low,
+                   double high):
+    """State of each stored cell's window of ``radius`` cells (window_state)."""
+    cdef Py_ssize_t n = cells.shape[0], i, c, tid
+    cdef Tiles t = tiles_view(table, tr0, tc0, tcols, tile_row, tile_col, count)
     out = np.empty(n, dtype=np.int8)
     cdef signed char[::1] o = out
     with nogil:
         for i in range(n):
-            occupied = False
-            free = True
-            for k in range(m):
-                v = logodds[cells[i] + offsets[k]]
-                if v > high:
-                    occupied = True
-                    break
-                if not v < low:
-                    free = False
-            o[i] = 2 if occupied else 0 if free else 1
+            c = cells[i]
+            tid = c >> (2 * SHIFT)
+            o[i] = window_state(&logodds[0], &t,
+                                (<Py_ssize_t>t.tile_row[tid] << SHIFT) + ((c >> SHIFT) & MASK),
+                                (<Py_ssize_t>t.tile_col[tid] << SHIFT) + (c & MASK),
+                                radius, low, high)
+    return out
+
+
+def classify_world_cells(const float[::1] logodds, const Py_ssize_t[::1] rows,
+                         const Py_ssize_t[::1] cols, Py_ssize_t radius, int[::1] table,
+                         Py_ssize_t tr0, Py_ssize_t tc0, Py_ssize_t tcols, int[::1] tile_row,
+                         int[::1] tile_col, Py_ssize_t count, double low, double high):
+    """State of the window around each world cell (rows[i], cols[i]), stored or not."""
+    cdef Py_ssize_t n = rows.shape[0], i
+    cdef Tiles t = tiles_view(table, tr0, tc0, tcols, tile_row, tile_col, count)
+    out = np.empty(n, dtype=np.int8)
+    cdef signed char[::1] o = out
+    with nogil:
+        for i in range(n):
+            o[i] = window_state(&logodds[0], &t, rows[i], cols[i], radius, low, high)
     return out
 
 

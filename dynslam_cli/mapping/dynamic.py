@@ -86,19 +86,13 @@ def classify_static(logodds: np.ndarray, low: float, high: float) -> np.ndarray:
     return state
 
 
-def neighbourhood_offsets(radius_cells: int, cols: int) -> np.ndarray:
-    """Flat-index offsets of the square window of the given radius (row-major grid)."""
-    r = np.arange(-radius_cells, radius_cells + 1)
-    return (r[:, None] * cols + r[None, :]).ravel().astype(np.intp)
-
-
-def classify_neighbourhood(static_flat: np.ndarray, cells: np.ndarray, offsets: np.ndarray,
-                           low: float, high: float) -> np.ndarray:
-    """State of S^{t-1} around each cell (Sec. 5): Occupied if any cell of the window is
-    Occupied, Free only if every cell is Free, else Unknown. So an end point that falls a
-    cell off a wall (pose or rounding error) still counts as hitting the wall."""
-    return _grid.classify_cells(np.asarray(static_flat, dtype=np.float32), cells, offsets,
-                                  logit(low), logit(high))
+def classify_neighbourhood(grids: GridStack, cells: np.ndarray, radius: int, low: float,
+                           high: float) -> np.ndarray:
+    """State of S^{t-1} around each cell (flat indices; Sec. 5): Occupied if any cell of the
+    square window of ``radius`` cells is Occupied, Free only if every cell is Free, else
+    Unknown. So an end point that falls a cell off a wall (pose or rounding error) still
+    counts as hitting the wall."""
+    return grids.classify_cells("static", cells, radius, logit(low), logit(high))
 
 
 def radius_cells(neighbourhood_m: float, resolution: float) -> int:
@@ -114,7 +108,8 @@ class DynamicMapper:
         self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
         m, d = config.map, config.dynamic
         self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
-        self.grids = GridStack(m.resolution_m, m.grow_margin_m, ("static", "dynamic"),
+        layers = ("static", "dynamic") if dynamic else ("static",)
+        self.grids = GridStack(m.resolution_m, m.grow_margin_m, layers,
                                pad_cells=self._radius, max_extent_m=m.max_extent_m)
         static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
                                                        m.p_clamp_max)
@@ -128,8 +123,6 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
-        self._offsets_for = -1
-        self._offsets_cache = np.zeros(0, np.intp)
         self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
                                                                       self._table_2)
                                       if t is not None)
@@ -146,21 +139,11 @@ class DynamicMapper:
         S/D separation every landmark counts as Occupied (static)."""
         if self._table_2 is None or len(positions) == 0:
             return np.full(len(positions), OCCUPIED, np.int8)
-        g, m = self.grids, self.config.map
-        cells, inside = g.flat_index_inside(positions[:, 0], positions[:, 1], self._radius)
-        states = np.full(len(positions), UNKNOWN, np.int8)  # outside the grid
-        states[inside] = classify_neighbourhood(
-            g.layers["static"].reshape(-1), cells, self._offsets(),
-            m.free_threshold, m.occupied_threshold)
-        return states
-
-    def _offsets(self) -> np.ndarray:
-        """The neighbourhood's flat-index offsets for the grid's current width."""
-        cols = self.grids.shape[1]
-        if self._offsets_for != cols:
-            self._offsets_cache = neighbourhood_offsets(self._radius, cols)
-            self._offsets_for = cols
-        return self._offsets_cache
+        m = self.config.map
+        rows, cols = self.grids.world_cells_of(positions[:, 0], positions[:, 1])
+        return self.grids.classify_world_cells("static", rows, cols, self._radius,
+                                               logit(m.free_threshold),
+                                               logit(m.occupied_threshold))
 
     def observe(self, pose: Pose2D, scan: Scan) -> Observation:
         """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
@@ -179,8 +162,8 @@ class DynamicMapper:
             free_prev = np.zeros(len(obs.free), np.int8)
         else:
             free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
-        hit_prev = classify_neighbourhood(s, obs.hit, self._offsets(), m.free_threshold,
-                                          m.occupied_threshold)
+        hit_prev = classify_neighbourhood(self.grids, obs.hit, self._radius,
+                                          m.free_threshold, m.occupied_threshold)
         return free_prev, hit_prev
 
     def update_static_map(self, obs: Observation, free_prev: np.ndarray,

@@ -1,14 +1,15 @@
-"""Growable occupancy grids in log-odds and vectorized beam tracing.
+"""Occupancy grids in log-odds, stored by the area seen, and beam tracing.
 
-Cell (row, col) covers x in [origin_x + col·res, origin_x + (col+1)·res) and likewise y with
-row, so row 0 is the *lowest* y (writers flip it for images, whose first row is the top).
-All layers of a :class:`GridStack` share one geometry and grow together, so the static and
-dynamic maps always have the same size and origin.
+World cell (row, col) covers x in [col·res, (col+1)·res) and likewise y with row, so row 0 is
+the *lowest* y (writers flip it for images, whose first row is the top). All layers of a
+:class:`GridStack` share one geometry and grow together, so the static and dynamic maps
+always have the same size and origin.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +17,8 @@ import numpy as np
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.mapping import _grid
 from dynslam_cli.types import Pose2D
+
+TILE = _grid.TILE_SIDE  # cells on a tile's side
 
 
 class MapExtentError(DynslamError):
@@ -44,18 +47,61 @@ class Observation:
     hit: np.ndarray
 
 
-@dataclass(frozen=True, slots=True)
-class OccupancyMap:
-    """A finished map: occupancy probabilities, ``prob[row, col]`` with row 0 at the lowest y."""
+BAND_ROWS = 256  # rows of a map read at a time by the writers
 
-    prob: np.ndarray
-    resolution: float
-    origin_x: float
-    origin_y: float
+
+class OccupancyMap:
+    """A finished map: occupancy probabilities with row 0 at the lowest y, cell (row, col)
+    covering x from ``origin_x + col·resolution``. Made from a dense array (``prob``) or from
+    a grid, read band by band (``rows_of(r0, r1)``: the probabilities of rows r0:r1), so a
+    large map is never held in full; :attr:`prob` makes the dense array when asked."""
+
+    def __init__(self, prob: np.ndarray | None, resolution: float, origin_x: float,
+                 origin_y: float, *, shape: tuple[int, int] | None = None,
+                 rows_of: Callable[[int, int], np.ndarray] | None = None) -> None:
+        if prob is not None:
+            shape, rows_of = prob.shape, lambda r0, r1: prob[r0:r1]
+        if shape is None or rows_of is None:
+            raise ValueError("an OccupancyMap needs prob, or shape and rows_of")
+        self.resolution, self.origin_x, self.origin_y = resolution, origin_x, origin_y
+        self.shape = (int(shape[0]), int(shape[1]))
+        self._rows_of = rows_of
+        self._prob = prob
+
+    def band(self, r0: int, r1: int) -> np.ndarray:
+        """Probabilities of rows r0:r1 (float64)."""
+        return self._rows_of(r0, r1)
+
+    def bands(self, rows: int = BAND_ROWS, from_top: bool = False
+              ) -> Iterator[tuple[int, np.ndarray]]:
+        """(first row, probabilities) of consecutive bands of ``rows`` rows, bottom up (top
+        down with ``from_top``: the order of an image's rows, each band still bottom up)."""
+        starts = range(0, self.shape[0], rows)
+        for r0 in reversed(starts) if from_top else starts:
+            yield r0, self.band(r0, min(r0 + rows, self.shape[0]))
+
+    def dense(self) -> OccupancyMap:
+        """The same map held in full (a grid's snapshot that must outlive the grid's next
+        update)."""
+        return OccupancyMap(self.prob, self.resolution, self.origin_x, self.origin_y)
+
+    @property
+    def prob(self) -> np.ndarray:
+        """The whole map as one array (made once)."""
+        if self._prob is None:
+            self._prob = self.band(0, self.shape[0])
+        return self._prob
 
 
 class GridStack:
-    """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one growable grid."""
+    """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one grid, stored by the area
+    seen: in tiles of ``TILE × TILE`` cells, each allocated when a beam first reaches it.
+
+    The grid's *extent* (``origin_row``, ``origin_col``, ``shape``: a rectangle of world
+    cells that grows with a margin to hold every scan) bounds the map and fixes where beams
+    are sampled; memory follows the tiles. A cell's *flat index* addresses it in every
+    layer (``layers[name]``, ``seen``): tile id · TILE² + its place in the tile.
+    """
 
     def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...],
                  pad_cells: int = 1, max_extent_m: float = math.inf) -> None:
@@ -63,19 +109,28 @@ class GridStack:
         self.max_extent_m = max_extent_m
         self.pad = (pad_cells + 1) * resolution  # cells around every end point stay inside
         self.margin_cells = max(1, math.ceil(grow_margin / resolution))
-        self.origin_col = 0  # world cell index of local column 0
+        self.origin_col = 0  # world cell index of the extent's column 0
         self.origin_row = 0
-        self.layers: dict[str, np.ndarray] = {n: np.zeros((0, 0), np.float32) for n in names}
-        self.seen = np.zeros((0, 0), bool)
-        self._listed = np.zeros((0, 0), np.int32)  # the last scan that listed each cell
-        self._scans = 0
+        self._shape = (0, 0)
+        self.names = names
+        self.layers: dict[str, np.ndarray] = {n: np.zeros(0, np.float32) for n in names}
+        self.seen = np.zeros(0, np.uint8)
+        self._listed = np.zeros(0, np.uint8)  # the mark of the last scan that listed a cell
+        self._mark = 0
+        # tiles: world tile (row, col) of each stored tile; the extent's table of tile ids
+        self.tile_rows = np.zeros(0, np.int32)
+        self.tile_cols = np.zeros(0, np.int32)
+        self.tiles = 0
+        self._table = np.full((0, 0), -1, np.int32)
+        self._table_origin = (0, 0)  # world tile of the table's [0, 0]
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.seen.shape
+        """Rows and columns of the extent."""
+        return self._shape
 
     def ensure(self, xmin: float, ymin: float, xmax: float, ymax: float) -> None:
-        """Grow every layer so that the rectangle lies inside, with a margin."""
+        """Grow the extent so that the rectangle lies inside, with a margin."""
         r = self.resolution
         c0, c1 = math.floor(xmin / r), math.floor(xmax / r)
         r0, r1 = math.floor(ymin / r), math.floor(ymax / r)
@@ -92,48 +147,85 @@ class GridStack:
             nr1 = r1 + m if r1 > or1 else or1
         else:
             nc0, nr0, nc1, nr1 = c0 - m, r0 - m, c1 + m, r1 + m
-        new_shape = (nr1 - nr0 + 1, nc1 - nc0 + 1)
-        width, height = new_shape[1] * r, new_shape[0] * r
+        self._set_extent(nr0, nc0, nr1 - nr0 + 1, nc1 - nc0 + 1)
+
+    def _set_extent(self, row0: int, col0: int, rows: int, cols: int) -> None:
+        width, height = cols * self.resolution, rows * self.resolution
         if max(width, height) > self.max_extent_m:
             raise MapExtentError(
                 f"the map would span {width:.0f} m × {height:.0f} m, more than "
                 f"map.max_extent_m = {self.max_extent_m:g} m: an odometry jump or a unit "
                 "error in the log? (raise the bound in a --config file for a larger place)")
-        dr, dc = self.origin_row - nr0, self.origin_col - nc0
-        for name, old in self.layers.items():
-            grown = np.zeros(new_shape, old.dtype)
-            grown[dr:dr + rows, dc:dc + cols] = old
-            self.layers[name] = grown
-        seen = np.zeros(new_shape, bool)
-        seen[dr:dr + rows, dc:dc + cols] = self.seen
-        self.seen = seen
-        self._listed = np.zeros(new_shape, np.int32)
-        self.origin_row, self.origin_col = nr0, nc0
+        self.origin_row, self.origin_col, self._shape = row0, col0, (rows, cols)
+        tr0, tc0 = row0 // TILE, col0 // TILE  # the tiles the extent touches
+        tr1, tc1 = (row0 + rows - 1) // TILE, (col0 + cols - 1) // TILE
+        table = np.full((tr1 - tr0 + 1, tc1 - tc0 + 1), -1, np.int32)
+        table[self.tile_rows[:self.tiles] - tr0, self.tile_cols[:self.tiles] - tc0] = \
+            np.arange(self.tiles, dtype=np.int32)
+        self._table, self._table_origin = table, (tr0, tc0)
 
     def reserve_like(self, other: GridStack) -> None:
-        """Size an empty stack to another's area at once (rather than growing, and copying,
-        scan by scan)."""
+        """Take another stack's extent and room for its tiles at once (rather than growing,
+        and copying, scan by scan)."""
         if self.shape[0] or not other.shape[0]:
             return
-        self.origin_row, self.origin_col = other.origin_row, other.origin_col
-        self.layers = {n: np.zeros(other.shape, layer.dtype) for n, layer in self.layers.items()}
-        self.seen = np.zeros(other.shape, bool)
-        self._listed = np.zeros(other.shape, np.int32)
+        self._set_extent(other.origin_row, other.origin_col, *other.shape)
+        self._grow_tiles(other.tiles)
 
-    def flat_index_inside(self, x: np.ndarray, y: np.ndarray, margin_cells: int = 0
-                          ) -> tuple[np.ndarray, np.ndarray]:
-        """(flat indices of the points at least ``margin_cells`` inside the grid, mask of
-        those points)."""
-        row, col = self._row_col(x, y)
-        rows, cols = self.shape
-        k = margin_cells
-        inside = (row >= k) & (row < rows - k) & (col >= k) & (col < cols - k)
-        return row[inside] * cols + col[inside], inside
+    def _grow_tiles(self, capacity: int) -> None:
+        """Room for ``capacity`` tiles in every array (new cells 0; the pages of unused room
+        are not touched, so they cost no memory until a tile is stored there)."""
+        def grown(old: np.ndarray, per_tile: int) -> np.ndarray:
+            new = np.zeros(capacity * per_tile, old.dtype)
+            new[:len(old)] = old
+            return new
+        cells = TILE * TILE
+        for name in self.layers:  # one at a time: the old array goes before the next grows
+            self.layers[name] = grown(self.layers[name], cells)
+        self.seen = grown(self.seen, cells)
+        self._listed = grown(self._listed, cells)
+        self.tile_rows, self.tile_cols = grown(self.tile_rows, 1), grown(self.tile_cols, 1)
 
-    def _row_col(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def world_cells(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World (row, col) of cells given by flat index."""
+        flat = np.asarray(flat, dtype=np.int64)
+        tile, place = np.divmod(flat, TILE * TILE)
+        r, c = np.divmod(place, TILE)
+        return (self.tile_rows[tile].astype(np.int64) * TILE + r,
+                self.tile_cols[tile].astype(np.int64) * TILE + c)
+
+    def flat_cells(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Flat indices of world cells (rows, cols); -1 where no tile holds the cell."""
+        rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+        tr, tc = rows // TILE - self._table_origin[0], cols // TILE - self._table_origin[1]
+        inside = (tr >= 0) & (tr < self._table.shape[0]) & (tc >= 0) & (tc < self._table.shape[1])
+        tile = np.full(rows.shape, -1, np.int64)
+        tile[inside] = self._table[tr[inside], tc[inside]]
+        flat = tile * TILE * TILE + (rows % TILE) * TILE + cols % TILE
+        return np.where(tile >= 0, flat, -1)
+
+    def world_cells_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World (row, col) of the cells holding the points (x, y)."""
         r = self.resolution
-        return (np.floor(y / r).astype(np.int64) - self.origin_row,
-                np.floor(x / r).astype(np.int64) - self.origin_col)
+        return np.floor(y / r).astype(np.intp), np.floor(x / r).astype(np.intp)
+
+    def _tiles_args(self) -> tuple:
+        tr0, tc0 = self._table_origin
+        return (self._table.reshape(-1), tr0, tc0, self._table.shape[1], self.tile_rows,
+                self.tile_cols, self.tiles)
+
+    def classify_cells(self, name: str, flat: np.ndarray, radius: int, low: float,
+                       high: float) -> np.ndarray:
+        """State (0 Free, 1 Unknown, 2 Occupied; log-odds thresholds) of the layer over the
+        window of ``radius`` cells around each stored cell (flat indices)."""
+        return _grid.classify_cells(self.layers[name], flat, radius, *self._tiles_args(),
+                                    low, high)
+
+    def classify_world_cells(self, name: str, rows: np.ndarray, cols: np.ndarray,
+                             radius: int, low: float, high: float) -> np.ndarray:
+        """The same around world cells (rows, cols), stored or not (not stored: p 0.5)."""
+        return _grid.classify_world_cells(self.layers[name], rows, cols, radius,
+                                          *self._tiles_args(), low, high)
 
     def observe(self, sensor: Pose2D, ranges: np.ndarray, angles: np.ndarray,
                 max_range: float, min_range: float, clear_cap: float) -> Observation:
@@ -151,32 +243,75 @@ class GridStack:
         x0, y0, x1, y1 = _grid.beam_extent(*beams)
         pad = self.pad
         self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
-        self._scans += 1
-        if self._scans == np.iinfo(np.int32).max:  # (after two billion scans)
-            self._listed[:] = 0
-            self._scans = 1
-        # Free space stops one cell short of a hit: the cell a surface passes through is
-        # often partly free, and marking it free from one angle and hit from another would
-        # erode walls and flicker D.
-        free, hit = _grid.trace_beams(
-            self.seen.reshape(-1).view(np.uint8), self._listed.reshape(-1), self._scans,
-            self.shape[1], self.resolution, self.origin_row, self.origin_col, *beams)
-        return Observation(free=free, hit=hit)
+        while True:
+            self._mark += 1
+            if self._mark == 256:  # (marks are bytes: start again from a clean slate)
+                self._listed[:] = 0
+                self._mark = 1
+            # Free space stops one cell short of a hit: the cell a surface passes through is
+            # often partly free, and marking it free from one angle and hit from another
+            # would erode walls and flicker D.
+            free, hit, self.tiles = _grid.trace_beams(
+                self.seen, self._listed, self._mark, *self._tiles_args(), self.resolution,
+                self.origin_row, self.origin_col, *beams)
+            if free is not None:
+                return Observation(free=free, hit=hit)
+            self._grow_tiles(max(64, len(self.tile_rows) * 3 // 2))  # and trace again
+
+    def window(self, name: str, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """The layer's values (float32) over extent rows r0:r1, columns c0:c1, 0 where no
+        tile is stored (everywhere for a layer not kept); ``seen`` for ``name`` "seen"."""
+        source = self.seen if name == "seen" else self.layers.get(name)
+        out = np.zeros((r1 - r0, c1 - c0), np.float32 if source is None else source.dtype)
+        if source is None:
+            return out
+        wr0, wc0 = self.origin_row + r0, self.origin_col + c0  # the window in world cells
+        wr1, wc1 = self.origin_row + r1, self.origin_col + c1
+        n = self.tiles
+        tr = self.tile_rows[:n].astype(np.int64) * TILE
+        tc = self.tile_cols[:n].astype(np.int64) * TILE
+        wanted = np.flatnonzero((tr < wr1) & (tr + TILE > wr0) & (tc < wc1) & (tc + TILE > wc0))
+        tiles = source[:n * TILE * TILE].reshape(n, TILE, TILE)
+        for t in wanted:
+            a, b = max(tr[t], wr0), min(tr[t] + TILE, wr1)
+            c, d = max(tc[t], wc0), min(tc[t] + TILE, wc1)
+            out[a - wr0:b - wr0, c - wc0:d - wc0] = tiles[t, a - tr[t]:b - tr[t],
+                                                          c - tc[t]:d - tc[t]]
+        return out
 
     def snapshot(self, name: str) -> OccupancyMap:
-        """The layer as probabilities, cropped with the other layers to the observed area."""
+        """The layer as probabilities, cropped with the other layers to the observed area;
+        read from the grid band by band as the writers need it (so the grid must not change
+        while the map is in use)."""
         r0, r1, c0, c1 = self.bounds()
         res = self.resolution
-        return OccupancyMap(prob=probability(self.layers[name][r0:r1, c0:c1]),
-                            resolution=res, origin_x=(self.origin_col + c0) * res,
-                            origin_y=(self.origin_row + r0) * res)
+        return OccupancyMap(None, res, (self.origin_col + c0) * res,
+                            (self.origin_row + r0) * res, shape=(r1 - r0, c1 - c0),
+                            rows_of=lambda a, b: probability(self.window(name, r0 + a, r0 + b,
+                                                                         c0, c1)))
 
     def bounds(self) -> tuple[int, int, int, int]:
-        """(row0, row1, col0, col1) half-open local bounds of every observed cell (+1 cell)."""
-        rows = np.flatnonzero(self.seen.any(axis=1))
-        cols = np.flatnonzero(self.seen.any(axis=0))
-        if not len(rows):
+        """(row0, row1, col0, col1) half-open extent bounds of every observed cell (+1 cell)."""
+        n = self.tiles
+        seen = self.seen[:n * TILE * TILE].reshape(n, TILE, TILE).astype(bool)
+        rows_seen, cols_seen = seen.any(axis=2), seen.any(axis=1)  # n × TILE each
+        t, r = np.nonzero(rows_seen)
+        if not len(t):
             return 0, min(1, self.shape[0]), 0, min(1, self.shape[1])
-        r0, r1 = max(rows[0] - 1, 0), min(rows[-1] + 2, self.shape[0])
-        c0, c1 = max(cols[0] - 1, 0), min(cols[-1] + 2, self.shape[1])
-        return int(r0), int(r1), int(c0), int(c1)
+        world_r = self.tile_rows[t].astype(np.int64) * TILE + r
+        t, c = np.nonzero(cols_seen)
+        world_c = self.tile_cols[t].astype(np.int64) * TILE + c
+        r0 = max(int(world_r.min()) - self.origin_row - 1, 0)
+        r1 = min(int(world_r.max()) - self.origin_row + 2, self.shape[0])
+        c0 = max(int(world_c.min()) - self.origin_col - 1, 0)
+        c1 = min(int(world_c.max()) - self.origin_col + 2, self.shape[1])
+        return r0, r1, c0, c1
+
+    def memory(self) -> dict[str, float]:
+        """What the grid holds, for the summary: tiles, cells stored and seen, bytes per cell
+        seen."""
+        cells = self.tiles * TILE * TILE
+        per_cell = sum(a.itemsize for a in (*self.layers.values(), self.seen, self._listed))
+        seen = int(np.count_nonzero(self.seen[:cells]))
+        return {"tiles": self.tiles, "cells_stored": cells, "cells_seen": seen,
+                "bytes_per_seen_cell": round(per_cell * cells / seen, 2) if seen else 0.0}
