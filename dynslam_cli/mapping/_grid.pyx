@@ -12,6 +12,7 @@ import numpy as np
 
 from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
 from libc.stdlib cimport calloc, free, malloc, realloc
+from cpython.pyport cimport PY_SSIZE_T_MIN
 
 ctypedef unsigned char u8
 
@@ -75,6 +76,21 @@ cdef inline Py_ssize_t tile_of(Tiles* t, Py_ssize_t R, Py_ssize_t C, bint grow) 
     return tid
 
 
+cdef inline Py_ssize_t stored_tile(Tiles* t, Py_ssize_t tr, Py_ssize_t tc) noexcept nogil:
+    """Tile id of world tile (tr, tc) inside the extent, a new tile if it has none yet; -1
+    when there is no room left (the tracer's path: no bounds check, no cache)."""
+    cdef Py_ssize_t key = (tr - t.tr0) * t.tcols + (tc - t.tc0), tid = t.table[key]
+    if tid < 0:
+        if t.count == t.capacity:
+            return -1
+        tid = t.count
+        t.count += 1
+        t.table[key] = <int>tid
+        t.tile_row[tid] = <int>tr
+        t.tile_col[tid] = <int>tc
+    return tid
+
+
 cdef inline Py_ssize_t cell_in(Py_ssize_t tid, Py_ssize_t R, Py_ssize_t C) noexcept nogil:
     return (tid << (2 * SHIFT)) + ((R & MASK) << SHIFT) + (C & MASK)
 
@@ -129,7 +145,7 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
     which must hold every beam's extent (beam_extent). Free and hit are None when the tile
     arrays ran out of room: grow them and call again."""
     cdef Py_ssize_t n = ranges.shape[0], i, k, total = 0, nh = 0, nf = 0, c, tid
-    cdef Py_ssize_t R, C
+    cdef Py_ssize_t R, C, base = 0, last_tr = PY_SSIZE_T_MIN, last_tc = PY_SSIZE_T_MIN
     cdef double length, ca, sa, u0 = sx / res - col0, v0 = sy / res - row0  # sensor, in cells
     cdef bint hit_i, new, full = False
     cdef Tiles t = tiles_view(table, tr0, tc0, tcols, tile_row, tile_col, count)
@@ -164,7 +180,7 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
         for i in range(n):
             if not eh[i]:
                 continue
-            tid = tile_of(&t, end[i, 0], end[i, 1], True)
+            tid = stored_tile(&t, end[i, 0] >> SHIFT, end[i, 1] >> SHIFT)
             if tid < 0:
                 full = True
                 break
@@ -182,11 +198,14 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
             for k in range(cnt[i]):  # inside the extent: truncation is floor
                 R = <Py_ssize_t>(v0 + k * sa) + row0
                 C = <Py_ssize_t>(u0 + k * ca) + col0
-                tid = tile_of(&t, R, C, True)
-                if tid < 0:
-                    full = True
-                    break
-                c = cell_in(tid, R, C)
+                if (R >> SHIFT) != last_tr or (C >> SHIFT) != last_tc:  # a beam's next tile
+                    last_tr, last_tc = R >> SHIFT, C >> SHIFT
+                    tid = stored_tile(&t, last_tr, last_tc)
+                    if tid < 0:
+                        full = True
+                        break
+                    base = tid << (2 * SHIFT)
+                c = base + ((R & MASK) << SHIFT) + (C & MASK)
                 new = listed[c] != mark  # branch-free: about half the samples are new
                 listed[c] = mark
                 seen[c] = 1
