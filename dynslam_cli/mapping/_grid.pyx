@@ -38,9 +38,9 @@ cdef inline double beam_length(double r, double min_range, double max_range, dou
 # of the grid's extent (-1: not stored yet), ``table[(TR - tr0) * tcols + (TC - tc0)]``.
 
 cdef enum:
-    SHIFT = 6
-    TILE = 64  # 1 << SHIFT
-    MASK = 63
+    SHIFT = 4
+    TILE = 16  # 1 << SHIFT
+    MASK = 15
 TILE_SIDE = TILE
 
 cdef struct Tiles:

@@ -170,21 +170,26 @@ class GridStack:
         if self.shape[0] or not other.shape[0]:
             return
         self._set_extent(other.origin_row, other.origin_col, *other.shape)
-        self._grow_tiles(other.tiles)
+        self._grow_tiles(other.tiles + other.tiles // 4)  # (room for poses the graph moved)
 
     def _grow_tiles(self, capacity: int) -> None:
-        """Room for ``capacity`` tiles in every array (new cells 0; the pages of unused room
-        are not touched, so they cost no memory until a tile is stored there)."""
-        def grown(old: np.ndarray, per_tile: int) -> np.ndarray:
-            new = np.zeros(capacity * per_tile, old.dtype)
-            new[:len(old)] = old
-            return new
+        """Room for ``capacity`` tiles in every array, new cells 0. Arrays are grown in place
+        (realloc: no second copy at any moment); empty ones are made afresh, and the pages
+        of the room not yet used cost no memory until a tile is stored there."""
         cells = TILE * TILE
-        for name in self.layers:  # one at a time: the old array goes before the next grows
-            self.layers[name] = grown(self.layers[name], cells)
-        self.seen = grown(self.seen, cells)
-        self._listed = grown(self._listed, cells)
-        self.tile_rows, self.tile_cols = grown(self.tile_rows, 1), grown(self.tile_cols, 1)
+        for name, a in (*self.layers.items(), ("seen", self.seen), ("listed", self._listed)):
+            if len(a):
+                a.resize(capacity * cells, refcheck=False)
+                continue
+            fresh = np.zeros(capacity * cells, a.dtype)
+            if name == "seen":
+                self.seen = fresh
+            elif name == "listed":
+                self._listed = fresh
+            else:
+                self.layers[name] = fresh
+        self.tile_rows.resize(capacity, refcheck=False)
+        self.tile_cols.resize(capacity, refcheck=False)
 
     def world_cells(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World (row, col) of cells given by flat index."""
@@ -256,7 +261,7 @@ class GridStack:
                 self.origin_row, self.origin_col, *beams)
             if free is not None:
                 return Observation(free=free, hit=hit)
-            self._grow_tiles(max(64, len(self.tile_rows) * 3 // 2))  # and trace again
+            self._grow_tiles(len(self.tile_rows) + max(64, len(self.tile_rows) // 8))  # again
 
     def window(self, name: str, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """The layer's values (float32) over extent rows r0:r1, columns c0:c1, 0 where no
@@ -291,21 +296,27 @@ class GridStack:
                                                                          c0, c1)))
 
     def bounds(self) -> tuple[int, int, int, int]:
-        """(row0, row1, col0, col1) half-open extent bounds of every observed cell (+1 cell)."""
+        """(row0, row1, col0, col1) half-open extent bounds of every observed cell (+1 cell).
+        Every stored tile holds a seen cell, so only the outermost tiles are looked into."""
         n = self.tiles
-        seen = self.seen[:n * TILE * TILE].reshape(n, TILE, TILE).astype(bool)
-        rows_seen, cols_seen = seen.any(axis=2), seen.any(axis=1)  # n × TILE each
-        t, r = np.nonzero(rows_seen)
-        if not len(t):
+        if not n:
             return 0, min(1, self.shape[0]), 0, min(1, self.shape[1])
-        world_r = self.tile_rows[t].astype(np.int64) * TILE + r
-        t, c = np.nonzero(cols_seen)
-        world_c = self.tile_cols[t].astype(np.int64) * TILE + c
-        r0 = max(int(world_r.min()) - self.origin_row - 1, 0)
-        r1 = min(int(world_r.max()) - self.origin_row + 2, self.shape[0])
-        c0 = max(int(world_c.min()) - self.origin_col - 1, 0)
-        c1 = min(int(world_c.max()) - self.origin_col + 2, self.shape[1])
-        return r0, r1, c0, c1
+        seen = self.seen[:n * TILE * TILE].reshape(n, TILE, TILE).view(bool)
+        tr, tc = self.tile_rows[:n].astype(np.int64), self.tile_cols[:n].astype(np.int64)
+
+        def extreme(tiles: np.ndarray, axis: int, last: bool) -> int:
+            """The lowest (or highest) seen row (axis 1) or column (axis 2) within tiles."""
+            hits = np.flatnonzero(seen[tiles].any(axis=3 - axis).any(axis=0))
+            return int(hits[-1] if last else hits[0])
+
+        r_lo = tr.min() * TILE + extreme(np.flatnonzero(tr == tr.min()), 1, False)
+        r_hi = tr.max() * TILE + extreme(np.flatnonzero(tr == tr.max()), 1, True)
+        c_lo = tc.min() * TILE + extreme(np.flatnonzero(tc == tc.min()), 2, False)
+        c_hi = tc.max() * TILE + extreme(np.flatnonzero(tc == tc.max()), 2, True)
+        return (max(int(r_lo) - self.origin_row - 1, 0),
+                min(int(r_hi) - self.origin_row + 2, self.shape[0]),
+                max(int(c_lo) - self.origin_col - 1, 0),
+                min(int(c_hi) - self.origin_col + 2, self.shape[1]))
 
     def memory(self) -> dict[str, float]:
         """What the grid holds, for the summary: tiles, cells stored and seen, bytes per cell
