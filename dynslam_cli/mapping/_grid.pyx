@@ -53,27 +53,16 @@ cdef struct Tiles:
     Py_ssize_t last_id
 
 
-cdef inline Py_ssize_t tile_of(Tiles* t, Py_ssize_t R, Py_ssize_t C, bint grow) noexcept nogil:
-    """Tile id of world cell (R, C); a new tile if ``grow`` and room is left, else -1 (not
-    stored, or no room: the caller tells them apart by ``t.count == t.capacity``)."""
-    cdef Py_ssize_t tr = (R >> SHIFT) - t.tr0, tc = (C >> SHIFT) - t.tc0, key, tid
+cdef inline Py_ssize_t tile_of(Tiles* t, Py_ssize_t R, Py_ssize_t C) noexcept nogil:
+    """Tile id of world cell (R, C), or -1 where no tile holds it (anywhere)."""
+    cdef Py_ssize_t tr = (R >> SHIFT) - t.tr0, tc = (C >> SHIFT) - t.tc0, key
     if tr < 0 or tc < 0 or tr >= t.trows or tc >= t.tcols:
         return -1
     key = tr * t.tcols + tc
-    if key == t.last_key:
-        return t.last_id
-    tid = t.table[key]
-    if tid < 0:
-        if not grow or t.count == t.capacity:
-            return -1
-        tid = t.count
-        t.count += 1
-        t.table[key] = <int>tid
-        t.tile_row[tid] = <int>(R >> SHIFT)
-        t.tile_col[tid] = <int>(C >> SHIFT)
-    t.last_key = key
-    t.last_id = tid
-    return tid
+    if key != t.last_key:  # a window mostly stays in one tile
+        t.last_key = key
+        t.last_id = t.table[key]
+    return t.last_id
 
 
 cdef inline Py_ssize_t stored_tile(Tiles* t, Py_ssize_t tr, Py_ssize_t tc) noexcept nogil:
@@ -225,7 +214,7 @@ cdef inline int window_state(const float* logodds, Tiles* t, Py_ssize_t R, Py_ss
     cdef bint free = True
     for dr in range(-radius, radius + 1):
         for dc in range(-radius, radius + 1):
-            tid = tile_of(t, R + dr, C + dc, False)
+            tid = tile_of(t, R + dr, C + dc)
             v = logodds[cell_in(tid, R + dr, C + dc)] if tid >= 0 else 0.0
             if v > high:
                 return 2

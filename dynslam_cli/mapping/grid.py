@@ -112,7 +112,6 @@ class GridStack:
         self.origin_col = 0  # world cell index of the extent's column 0
         self.origin_row = 0
         self._shape = (0, 0)
-        self.names = names
         self.layers: dict[str, np.ndarray] = {n: np.zeros(0, np.float32) for n in names}
         self.seen = np.zeros(0, np.uint8)
         self._listed = np.zeros(0, np.uint8)  # the mark of the last scan that listed a cell
@@ -176,18 +175,16 @@ class GridStack:
         """Room for ``capacity`` tiles in every array, new cells 0. Arrays are grown in place
         (realloc: no second copy at any moment); empty ones are made afresh, and the pages
         of the room not yet used cost no memory until a tile is stored there."""
-        cells = TILE * TILE
-        for name, a in (*self.layers.items(), ("seen", self.seen), ("listed", self._listed)):
-            if len(a):
-                a.resize(capacity * cells, refcheck=False)
-                continue
-            fresh = np.zeros(capacity * cells, a.dtype)
-            if name == "seen":
-                self.seen = fresh
-            elif name == "listed":
-                self._listed = fresh
-            else:
-                self.layers[name] = fresh
+        size = capacity * TILE * TILE
+
+        def grown(a: np.ndarray) -> np.ndarray:
+            if not len(a):
+                return np.zeros(size, a.dtype)
+            a.resize(size, refcheck=False)
+            return a
+
+        self.layers = {name: grown(a) for name, a in self.layers.items()}
+        self.seen, self._listed = grown(self.seen), grown(self._listed)
         self.tile_rows.resize(capacity, refcheck=False)
         self.tile_cols.resize(capacity, refcheck=False)
 
@@ -265,9 +262,9 @@ class GridStack:
 
     def window(self, name: str, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """The layer's values (float32) over extent rows r0:r1, columns c0:c1, 0 where no
-        tile is stored (everywhere for a layer not kept); ``seen`` for ``name`` "seen"."""
-        source = self.seen if name == "seen" else self.layers.get(name)
-        out = np.zeros((r1 - r0, c1 - c0), np.float32 if source is None else source.dtype)
+        tile is stored (everywhere for a layer not kept)."""
+        out = np.zeros((r1 - r0, c1 - c0), np.float32)
+        source = self.layers.get(name)
         if source is None:
             return out
         wr0, wc0 = self.origin_row + r0, self.origin_col + c0  # the window in world cells
