@@ -199,6 +199,63 @@ def test_a_false_loop_closure_waits_and_never_enters_alone():
     assert closer.accept(closure(3, 32, -0.8)) == []  # another, disagreeing with the first
     agreeing = closure(4, 34, 0.0)  # the graph already agrees: in at once
     assert closer.accept(agreeing) == [agreeing]
-    first, second = closure(5, 36, 0.6), closure(6, 38, 0.6)  # true drift, seen twice
+    first, second = closure(5, 33, 0.6), closure(8, 39, 0.6)  # true drift, seen twice
     assert closer.accept(first) == []
     assert closer.accept(second) == [first, second]
+
+
+def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
+    """Matches made a step apart see the same view and share its aliasing (a corridor's
+    doors matched one door off): they agree with each other, and still wait until a match
+    from farther along (``pair_min_separation_m``) tells the same story."""
+    from dynslam_cli.localization.loops import Closure
+
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    for x in np.arange(0.0, 20.01, 0.5):
+        closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
+    info = np.diag([400.0, 400.0, 3000.0])
+
+    def closure(old: int, new: int) -> Closure:
+        z = relative(closer.pose(old), closer.pose(new))
+        z = Pose2D(z.x + 1.2, z.y, z.theta)  # one door spacing off, or a true drift
+        return Closure(old, new, z, info, closer._chi2(old, new, z, info))
+
+    a, b, c = closure(2, 30), closure(3, 31), closure(9, 37)  # 0.5 m, then 3.5 m on
+    assert closer.accept(a) == []
+    assert closer.accept(b) == []  # agrees with a, but from the same place
+    assert closer.accept(c) == [b, c]  # from far enough along: the story holds
+
+
+def test_graph_distance_follows_the_chain_and_takes_loop_shortcuts():
+    """The search window grows with the driving between two nodes through the graph, so a
+    place tied by a loop closure is near again however long ago it was first seen."""
+    from dynslam_cli.localization.loops import Closure
+
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
+                        MatchConfig(), EkfConfig())
+    for x in np.arange(0.0, 20.01, 0.5):
+        closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
+    d = closer.graph_distance(40)
+    assert d[0] == pytest.approx(20.0, abs=1e-3) and d[20] == pytest.approx(10.0, abs=1e-3)
+    closer.add_closures([Closure(0, 40, Pose2D(20.0, 0.0, 0.0), np.eye(3), 0.0)])
+    d = closer.graph_distance(40)
+    assert d[0] < 0.01 and d[10] == pytest.approx(5.0, abs=0.01)  # round the loop
+    assert closer.radius(d[0]) < closer.radius(20.0)
+
+
+def test_a_match_keeps_none_of_the_odometrys_error():
+    """Matched from guesses off by up to 0.3 m and 4° (harsh wheel odometry), the scan comes
+    out where it was taken: the match converges instead of stopping part way and keeping a
+    share of the guess's error."""
+    from dynslam_cli.localization._match import PointIndex
+    from dynslam_cli.localization.scanmatch import icp
+
+    ref = PointIndex(robot_points(Pose2D()))
+    true = Pose2D(0.4, -0.2, math.radians(3.0))
+    pts = robot_points(true)
+    for dx, dy, dth in ((0.3, 0.0, 4.0), (-0.2, 0.25, -4.0), (0.0, -0.3, 2.5)):
+        guess = Pose2D(true.x + dx, true.y + dy, true.theta + math.radians(dth))
+        m = icp(ref, ref.normals(6), pts, guess, MatchConfig(), (0.3, 0.3, math.radians(5)))
+        assert m.share > 0.9
+        assert math.hypot(m.pose.x - true.x, m.pose.y - true.y) < 0.005
+        assert abs(math.degrees(m.pose.theta - true.theta)) < 0.05

@@ -4,8 +4,9 @@ The EKF (Sec. 4) keeps only the landmarks of the last stretch of the run; what d
 leaves over a long loop is removed here, the way graph-based SLAM does it. Every key scan
 becomes a node of a :class:`~dynslam_cli.localization.graph.PoseGraph`, chained to the
 previous one by the EKF's relative motion. When the robot is near a node it left a long way
-back (near by the current estimate, within a radius that grows with the distance driven
-since the last closure), the scans around the new node are matched against those around the old one:
+back (near by the current estimate, within a radius that grows with the driving between
+the two nodes through the graph, where a loop already closed is a shortcut), the scans
+around the new node are matched against those around the old one:
 
 1. **correlative search** over a window of translations and rotations on a likelihood field
    of the old scans (a coarse pass on a max-pooled field bounds every fine cell below it,
@@ -14,8 +15,9 @@ since the last closure), the scans around the new node are matched against those
    ambiguity (the spread of the poses that could score as well), so a match along a
    featureless corridor constrains only the directions it can see;
 3. **consistency**: a match the graph already agrees with is added; one that would move
-   the graph waits for a second match close by that tells the same story (the loop of the
-   two matches and the path between them closes), so a single false match never enters;
+   the graph waits for a second match, made a few metres on, that tells the same story
+   (the loop of the two matches and the path between them closes), so a single false
+   match never enters;
 4. an accepted match becomes an edge with a Cauchy kernel (a wrong one is pulled on only
    softly), and the graph is optimized.
 """
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import bisect
 import functools
+import heapq
 import math
 from collections import OrderedDict, deque
 from dataclasses import dataclass
@@ -55,11 +58,12 @@ class LoopConfig:
     search_radius_m: float = 1.0
     """Candidates lie within this radius of the current estimate ..."""
     drift_per_m: float = 0.05
-    """... plus this share of the distance driven since the last loop closure ..."""
+    """... plus this share of the graph distance between the two nodes (the driving between
+    them, loop closures being shortcuts: see :meth:`LoopCloser.graph_distance`) ..."""
     max_search_radius_m: float = 6.0
     """... up to this."""
     search_angle_deg: float = 10.0
-    """Rotation window of the search (plus 1° per 10 m driven since the last closure)."""
+    """Rotation window of the search (plus 1° per 10 m of graph distance)."""
     max_search_angle_deg: float = 30.0
     submap_nodes: int = 4
     """Scans of this many nodes on each side of the old node make the matched submap."""
@@ -90,6 +94,9 @@ class LoopConfig:
     other waits for a second closure that agrees with it ..."""
     pair_window_m: float = 50.0
     """... made within this much driving after it (the last ``pending_closures`` wait) ..."""
+    pair_min_separation_m: float = 3.0
+    """... but at least this far along (two matches from nearly the same place see the same
+    view, so they share its aliasing: a corridor's doors matched one door off) ..."""
     pair_tolerance_m: float = 0.15
     pair_tolerance_deg: float = 2.0
     """... closing the loop of the two closures to this (plus ``drift_per_m`` and
@@ -105,6 +112,7 @@ COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
 TOP_COARSE = 6
 ANGLE_STEP_DEG = 1.0
 NORMAL_NEIGHBOURS = 6
+LOOP_EDGE_LENGTH_M = 1e-3  # a loop closure's length in the graph distance
 ONLINE_ITERATIONS = 1  # Gauss-Newton steps per optimization while the log runs
 FINAL_ITERATIONS = 10
 
@@ -275,8 +283,8 @@ class LoopCloser:
         self.path: list[float] = []  # distance driven up to each node
         self.closures = 0
         self.attempts = 0
-        self._since_closure_m = 0.0
         self._last_attempt_m = -math.inf
+        self._links: list[list[tuple[int, float]]] = []  # per node: (neighbour, length)
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
 
@@ -305,7 +313,7 @@ class LoopCloser:
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
         step = math.hypot(z.x, z.y)
         self._append(front_pose, points, self.path[-1] + step)
-        self._since_closure_m += step
+        self._link(k_prev, k, step)
         return self._try_closure(k)
 
     def pose(self, k: int) -> Pose2D:
@@ -313,34 +321,78 @@ class LoopCloser:
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
     def _append(self, front_pose: Pose2D, points: np.ndarray, path: float) -> None:
+        self._links.append([])
         self.front.append(front_pose)
         self.points.append(points)
         self.path.append(path)
 
-    def _candidates(self, k: int, radius: float) -> list[int]:
-        """Nodes driven at least ``min_travel_m`` before node k (a prefix: the distance
-        driven only grows) within ``radius`` of it, nearest first."""
-        old = bisect.bisect_right(self.path, self.path[k] - self.cfg.min_travel_m)
+    def graph_distance(self, k: int) -> np.ndarray:
+        """How far each node is from node k through the graph: the shortest path along the
+        chain (metres driven) where loop closures are shortcuts of ~0 length. The drift
+        between two nodes grows with it, not with the time between them: a place the robot
+        closed a loop to a minute ago is near however long ago it was first seen. Nodes
+        farther than where the search window stops growing get ∞ (so the search, Dijkstra's,
+        visits only the graph near node k)."""
+        cfg = self.cfg
+        limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
+        dist = np.full(len(self.front), math.inf)
+        dist[k] = 0.0
+        heap = [(0.0, k)]
+        while heap:
+            d, n = heapq.heappop(heap)
+            if d > dist[n]:
+                continue
+            for m, length in self._links[n]:
+                e = d + length
+                if e < dist[m] and e <= limit:
+                    dist[m] = e
+                    heapq.heappush(heap, (e, m))
+        return dist
+
+    def _link(self, i: int, j: int, length: float) -> None:
+        """An edge of the graph distance (both ways)."""
+        self._links[i].append((j, length))
+        self._links[j].append((i, length))
+
+    def _candidate(self, k: int) -> tuple[int, float] | None:
+        """The old node to match node k against and how far it is through the graph; None if
+        there is none. Candidates lie ``min_travel_m`` or more back along the path and within
+        their search radius (it grows with the graph distance) of node k's estimate; the
+        nearest is taken."""
+        cfg = self.cfg
+        old = bisect.bisect_right(self.path, self.path[k] - cfg.min_travel_m)
         if old == 0:
-            return []
+            return None
         xy = self.graph.poses[:old, :2]
         d = np.hypot(xy[:, 0] - self.graph.poses[k, 0], xy[:, 1] - self.graph.poses[k, 1])
-        near = np.flatnonzero(d <= radius)
-        return [int(i) for i in near[np.argsort(d[near], kind="stable")]]
+        near = np.flatnonzero(d <= cfg.max_search_radius_m)
+        if not len(near):
+            return None
+        g = self.graph_distance(k)[near]
+        inside = np.flatnonzero(d[near] <= self.radius(g))
+        if not len(inside):
+            return None
+        best = inside[np.argmin(d[near[inside]])]
+        return int(near[best]), float(g[best])
+
+    def radius(self, graph_m: np.ndarray | float) -> np.ndarray:
+        """Search radius (m) for a node this far through the graph."""
+        cfg = self.cfg
+        return np.minimum(cfg.search_radius_m + cfg.drift_per_m * np.asarray(graph_m),
+                          cfg.max_search_radius_m)
 
     def _try_closure(self, k: int) -> bool:
         cfg = self.cfg
         if self.path[k] - self._last_attempt_m < cfg.attempt_every_m:
             return False
-        radius = min(cfg.search_radius_m + cfg.drift_per_m * self._since_closure_m,
-                     cfg.max_search_radius_m)
-        candidates = self._candidates(k, radius)
-        if not candidates:
+        found = self._candidate(k)
+        if found is None:
             return False
         self._last_attempt_m = self.path[k]
         self.attempts += 1
-        i = candidates[0]
-        window_deg = min(cfg.search_angle_deg + self._since_closure_m / 10.0,
+        i, graph_m = found
+        radius = float(self.radius(graph_m))
+        window_deg = min(cfg.search_angle_deg + min(graph_m, 1e9) / 10.0,
                          cfg.max_search_angle_deg)
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
@@ -359,17 +411,22 @@ class LoopCloser:
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
         closure = Closure(i, k, pose, info, self._chi2(i, k, pose, info))
         accepted = self.accept(closure)
-        for c in accepted:
-            self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
-                                robust=True)
-        self.closures += len(accepted)
+        self.add_closures(accepted)
         if not accepted:
             return False
-        self._since_closure_m = 0.0
         if all(c.chi2 <= cfg.agree_chi2 for c in accepted):
             return False  # the graph already agrees: optimize later (finish() always does)
         self.optimize()
         return True
+
+    def add_closures(self, closures: list[Closure]) -> None:
+        """Accepted closures into the graph: edges with the robust kernel, and shortcuts of
+        the graph distance."""
+        for c in closures:
+            self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
+                                robust=True)
+            self._link(c.old, c.new, LOOP_EDGE_LENGTH_M)
+        self.closures += len(closures)
 
     def _chi2(self, i: int, k: int, z: Pose2D, info: np.ndarray) -> float:
         """How far the graph's estimate of node k seen from node i is from ``z`` (χ²)."""
@@ -399,7 +456,8 @@ class LoopCloser:
         new node to b's new node must reach the same pose as the path between the old
         nodes then b's match, within what the two stretches of path may have drifted."""
         cfg = self.cfg
-        if self.path[b.new] - self.path[a.new] > cfg.pair_window_m:
+        apart = self.path[b.new] - self.path[a.new]
+        if apart > cfg.pair_window_m or apart < cfg.pair_min_separation_m:
             return False
         via_new = compose(a.z, relative(self.pose(a.new), self.pose(b.new)))
         via_old = compose(relative(self.pose(a.old), self.pose(b.old)), b.z)
