@@ -189,7 +189,9 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
         double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
         double wx, double wy, double wth, double sigma):
-    """Point-to-line ICP (see scanmatch.icp). Returns (x, y, θ, share, rms, ok, h): h is
+    """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
+    at a wider gate, it goes on at the narrowest until converged there (the answer is then
+    the narrow gate's, outliers left out). Returns (x, y, θ, share, rms, ok, h): h is
     the Huber-weighted Σ J Jᵀ of the pairs of the last iteration (3×3, the prior left out)."""
     cdef double out[11]
     cdef bint ok
@@ -217,8 +219,10 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
     cdef double d[3]
     cdef double jac[3]
     cdef int it, p, q
+    cdef bint narrow = False  # converged at a wider gate: on at the narrowest
     for it in range(iterations):
-        gate = gate_max + (gate_min - gate_max) * it / max(iterations - 1, 1)
+        gate = gate_min if narrow else (
+            gate_max + (gate_min - gate_max) * it / max(iterations - 1, 1))
         c = cos(th)
         s = sin(th)
         for p in range(3):
@@ -270,7 +274,9 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
         th -= d[2]
         rms = sqrt(sq / used)
         if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
-            break
+            if narrow or gate <= gate_min:
+                break
+            narrow = True
     out[0] = x
     out[1] = y
     out[2] = remainder(th, 2 * 3.141592653589793)
