@@ -72,3 +72,73 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
                     for b in range(nx):
                         o[t, a, b] /= n
     return out
+
+
+# -- graph distance (the search window's size) ----------------------------------------------
+
+def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
+                   const Py_ssize_t[::1] to, const double[::1] length, Py_ssize_t n,
+                   Py_ssize_t source, double limit):
+    """Dijkstra from ``source`` over an undirected graph of ``n`` nodes kept as adjacency
+    lists (node v's first half-edge is head[v], each half-edge e leads to to[e] with
+    length[e] and is followed by nxt[e]; -1 ends a list): the distance to every node, ∞
+    beyond ``limit`` (the search never goes past it, so its cost is that of the graph
+    within the limit)."""
+    dist = np.full(n, INFINITY)
+    cdef double[::1] d = dist
+    cdef Py_ssize_t cap = 64, size = 0, i, c, e, v, w
+    cdef double dv, dw
+    cdef double *key = <double *>malloc(cap * sizeof(double))
+    cdef Py_ssize_t *node = <Py_ssize_t *>malloc(cap * sizeof(Py_ssize_t))
+    cdef void *grown
+    if key == NULL or node == NULL:
+        free(key)
+        free(node)
+        raise MemoryError()
+    try:
+        d[source] = 0.0
+        key[0], node[0], size = 0.0, source, 1
+        while size:
+            dv, v = key[0], node[0]  # pop the heap's least ...
+            size -= 1
+            i = 0
+            while True:  # ... and sift its last entry down from the top
+                c = 2 * i + 1
+                if c >= size:
+                    break
+                if c + 1 < size and key[c + 1] < key[c]:
+                    c += 1
+                if key[size] <= key[c]:
+                    break
+                key[i], node[i] = key[c], node[c]
+                i = c
+            key[i], node[i] = key[size], node[size]
+            if dv > d[v]:
+                continue  # a stale entry
+            e = head[v]
+            while e >= 0:
+                w = to[e]
+                dw = dv + length[e]
+                if dw < d[w] and dw <= limit:
+                    d[w] = dw
+                    if size == cap:
+                        cap *= 2
+                        grown = realloc(key, cap * sizeof(double))
+                        if grown == NULL:
+                            raise MemoryError()
+                        key = <double *>grown
+                        grown = realloc(node, cap * sizeof(Py_ssize_t))
+                        if grown == NULL:
+                            raise MemoryError()
+                        node = <Py_ssize_t *>grown
+                    i = size  # push, sifting up
+                    size += 1
+                    while i and key[(i - 1) // 2] > dw:
+                        key[i], node[i] = key[(i - 1) // 2], node[(i - 1) // 2]
+                        i = (i - 1) // 2
+                    key[i], node[i] = dw, w
+                e = nxt[e]
+    finally:
+        free(key)
+        free(node)
+    return dist

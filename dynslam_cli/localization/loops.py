@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import bisect
 import functools
-import heapq
 import math
 from collections import OrderedDict, deque
 from dataclasses import dataclass
@@ -270,6 +269,38 @@ class Closure:
     chi2: float
 
 
+class Links:
+    """The graph's edges as adjacency lists (for :func:`_loops.shortest_paths`), grown by
+    doubling: ``head[v]`` is node v's first half-edge, each half-edge leads ``to`` a node
+    with a ``length`` and is followed by ``nxt`` (-1 ends a list)."""
+
+    def __init__(self) -> None:
+        self.head = np.full(64, -1, np.intp)
+        self.nxt, self.to = np.zeros(64, np.intp), np.zeros(64, np.intp)
+        self.length = np.zeros(64)
+        self.count = 0
+
+    def link(self, i: int, j: int, length: float) -> None:
+        """An edge between nodes i and j (both ways)."""
+        while max(i, j) >= len(self.head):
+            self.head = np.concatenate((self.head, np.full(len(self.head), -1, np.intp)))
+        if self.count + 2 > len(self.to):
+            self.nxt, self.to, self.length = (np.concatenate((a, np.zeros_like(a)))
+                                              for a in (self.nxt, self.to, self.length))
+        for a, b in ((i, j), (j, i)):
+            e = self.count
+            self.to[e], self.length[e], self.nxt[e] = b, length, self.head[a]
+            self.head[a] = e
+            self.count += 1
+
+    def shortest_paths(self, n: int, source: int, limit: float) -> np.ndarray:
+        """Distances from ``source`` to nodes 0…n-1 (n - 1 the newest linked or later), ∞
+        beyond ``limit``."""
+        head = self.head[:n] if len(self.head) >= n else np.concatenate(
+            (self.head, np.full(n - len(self.head), -1, np.intp)))
+        return _loops.shortest_paths(head, self.nxt, self.to, self.length, n, source, limit)
+
+
 class LoopCloser:
     """Keeps the graph, the key scans and the closures."""
 
@@ -284,7 +315,7 @@ class LoopCloser:
         self.closures = 0
         self.attempts = 0
         self._last_attempt_m = -math.inf
-        self._links: list[list[tuple[int, float]]] = []  # per node: (neighbour, length)
+        self._links = Links()  # the graph, for its distances
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
 
@@ -313,7 +344,7 @@ class LoopCloser:
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
         step = math.hypot(z.x, z.y)
         self._append(front_pose, points, self.path[-1] + step)
-        self._link(k_prev, k, step)
+        self._links.link(k_prev, k, step)
         return self._try_closure(k)
 
     def pose(self, k: int) -> Pose2D:
@@ -321,7 +352,6 @@ class LoopCloser:
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
     def _append(self, front_pose: Pose2D, points: np.ndarray, path: float) -> None:
-        self._links.append([])
         self.front.append(front_pose)
         self.points.append(points)
         self.path.append(path)
@@ -331,28 +361,11 @@ class LoopCloser:
         chain (metres driven) where loop closures are shortcuts of ~0 length. The drift
         between two nodes grows with it, not with the time between them: a place the robot
         closed a loop to a minute ago is near however long ago it was first seen. Nodes
-        farther than where the search window stops growing get ∞ (so the search, Dijkstra's,
-        visits only the graph near node k)."""
+        farther than where the search window stops growing get ∞ (so the search visits only
+        the graph near node k)."""
         cfg = self.cfg
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
-        dist = np.full(len(self.front), math.inf)
-        dist[k] = 0.0
-        heap = [(0.0, k)]
-        while heap:
-            d, n = heapq.heappop(heap)
-            if d > dist[n]:
-                continue
-            for m, length in self._links[n]:
-                e = d + length
-                if e < dist[m] and e <= limit:
-                    dist[m] = e
-                    heapq.heappush(heap, (e, m))
-        return dist
-
-    def _link(self, i: int, j: int, length: float) -> None:
-        """An edge of the graph distance (both ways)."""
-        self._links[i].append((j, length))
-        self._links[j].append((i, length))
+        return self._links.shortest_paths(len(self.front), k, limit)
 
     def _candidate(self, k: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
@@ -425,7 +438,7 @@ class LoopCloser:
         for c in closures:
             self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
                                 robust=True)
-            self._link(c.old, c.new, LOOP_EDGE_LENGTH_M)
+            self._links.link(c.old, c.new, LOOP_EDGE_LENGTH_M)
         self.closures += len(closures)
 
     def _chi2(self, i: int, k: int, z: Pose2D, info: np.ndarray) -> float:
