@@ -12,6 +12,7 @@ from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
 from dynslam_cli.localization.loops import (
+    Closure,
     LoopCloser,
     LoopConfig,
     correlative_match,
@@ -182,8 +183,6 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 def test_a_false_loop_closure_waits_and_never_enters_alone():
     """A closure that would bend the graph is held; it enters only with a second closure
     that tells the same story. A lone false one never does, a pair of true ones do."""
-    from dynslam_cli.localization.loops import Closure
-
     closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
     for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
@@ -208,8 +207,6 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
     """Matches made a step apart see the same view and share its aliasing (a corridor's
     doors matched one door off): they agree with each other, and still wait until a match
     from farther along (``pair_min_separation_m``) tells the same story."""
-    from dynslam_cli.localization.loops import Closure
-
     closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
@@ -229,8 +226,6 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
 def test_graph_distance_follows_the_chain_and_takes_loop_shortcuts():
     """The search window grows with the driving between two nodes through the graph, so a
     place tied by a loop closure is near again however long ago it was first seen."""
-    from dynslam_cli.localization.loops import Closure
-
     closer = LoopCloser(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
                         MatchConfig(), EkfConfig())
     for x in np.arange(0.0, 20.01, 0.5):

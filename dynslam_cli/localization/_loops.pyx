@@ -84,6 +84,8 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
     length[e] and is followed by nxt[e]; -1 ends a list): the distance to every node, ∞
     beyond ``limit`` (the search never goes past it, so its cost is that of the graph
     within the limit)."""
+    if not 0 <= source < n or head.shape[0] < n:
+        raise ValueError("source or adjacency lists do not cover the graph's nodes")
     dist = np.full(n, INFINITY)
     cdef double[::1] d = dist
     cdef Py_ssize_t cap = 64, size = 0, i, c, e, v, w

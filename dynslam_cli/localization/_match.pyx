@@ -274,7 +274,7 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
         th -= d[2]
         rms = sqrt(sq / used)
         if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
-            if narrow or gate <= gate_min:
+            if gate <= gate_min:  # (always so once narrow)
                 break
             narrow = True
     out[0] = x

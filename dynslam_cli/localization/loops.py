@@ -275,15 +275,19 @@ class Links:
     with a ``length`` and is followed by ``nxt`` (-1 ends a list)."""
 
     def __init__(self) -> None:
+        self.nodes = 0
         self.head = np.full(64, -1, np.intp)
         self.nxt, self.to = np.zeros(64, np.intp), np.zeros(64, np.intp)
         self.length = np.zeros(64)
         self.count = 0
 
+    def add_node(self) -> None:
+        if self.nodes == len(self.head):
+            self.head = np.concatenate((self.head, np.full(len(self.head), -1, np.intp)))
+        self.nodes += 1
+
     def link(self, i: int, j: int, length: float) -> None:
         """An edge between nodes i and j (both ways)."""
-        while max(i, j) >= len(self.head):
-            self.head = np.concatenate((self.head, np.full(len(self.head), -1, np.intp)))
         if self.count + 2 > len(self.to):
             self.nxt, self.to, self.length = (np.concatenate((a, np.zeros_like(a)))
                                               for a in (self.nxt, self.to, self.length))
@@ -293,12 +297,10 @@ class Links:
             self.head[a] = e
             self.count += 1
 
-    def shortest_paths(self, n: int, source: int, limit: float) -> np.ndarray:
-        """Distances from ``source`` to nodes 0…n-1 (n - 1 the newest linked or later), ∞
-        beyond ``limit``."""
-        head = self.head[:n] if len(self.head) >= n else np.concatenate(
-            (self.head, np.full(n - len(self.head), -1, np.intp)))
-        return _loops.shortest_paths(head, self.nxt, self.to, self.length, n, source, limit)
+    def shortest_paths(self, source: int, limit: float) -> np.ndarray:
+        """Distances from ``source`` to every node, ∞ beyond ``limit``."""
+        return _loops.shortest_paths(self.head, self.nxt, self.to, self.length, self.nodes,
+                                     source, limit)
 
 
 class LoopCloser:
@@ -352,6 +354,7 @@ class LoopCloser:
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
     def _append(self, front_pose: Pose2D, points: np.ndarray, path: float) -> None:
+        self._links.add_node()
         self.front.append(front_pose)
         self.points.append(points)
         self.path.append(path)
@@ -365,7 +368,7 @@ class LoopCloser:
         the graph near node k)."""
         cfg = self.cfg
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
-        return self._links.shortest_paths(len(self.front), k, limit)
+        return self._links.shortest_paths(k, limit)
 
     def _candidate(self, k: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
@@ -405,8 +408,7 @@ class LoopCloser:
         self.attempts += 1
         i, graph_m = found
         radius = float(self.radius(graph_m))
-        window_deg = min(cfg.search_angle_deg + min(graph_m, 1e9) / 10.0,
-                         cfg.max_search_angle_deg)
+        window_deg = min(cfg.search_angle_deg + graph_m / 10.0, cfg.max_search_angle_deg)
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
             return False  # a corridor: it could be anywhere along it
