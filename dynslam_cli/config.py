@@ -32,6 +32,7 @@ from dynslam_cli.localization.corners import CornerConfig
 from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.loops import LoopConfig
 from dynslam_cli.localization.scanmatch import MatchConfig
+from dynslam_cli.mapping.grid import LOGODDS_STEP, MAX_LOGODDS
 from dynslam_cli.types import Scan
 
 
@@ -151,6 +152,9 @@ class Config:
             (c.min_points >= 3 and c.min_length_m > 0, "corners: min_points >= 3, length > 0"),
             (0 < c.min_angle_deg < 90, "corners.min_angle_deg must be in (0, 90)"),
         ]
+        checks += [(_storable(values), f"{name}: {_STORABLE}") for name, values in (
+            ("map", (m.p_hit, m.p_miss, m.p_clamp_min, m.p_clamp_max)),
+            ("dynamic", (d.p_high, d.p_low, d.p_clamp_min, d.p_clamp_max)))]
         for ok, message in checks:
             if not ok:
                 raise ConfigError(message)
@@ -158,6 +162,21 @@ class Config:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+_STORABLE = (f"the grids store log-odds as int16 steps of {LOGODDS_STEP:g}: the high and "
+              f"low values must be at least one step from 0 in log-odds, the clamps within "
+              f"±{MAX_LOGODDS:.1f} (p at least 1.3e-14 from 0 and 1)")
+
+
+def _storable(probabilities: tuple[float, float, float, float]) -> bool:
+    """Whether an inverse model (high, low, clamp min, clamp max; in (0, 1)) fits the
+    grid's int16 log-odds: each value moves a cell, each clamp can be stored."""
+    if not all(0 < p < 1 for p in probabilities):
+        return True  # (the range checks say so)
+    high, low, lo, hi = (math.log(p / (1 - p)) for p in probabilities)
+    return (min(abs(high), abs(low)) >= LOGODDS_STEP
+            and max(abs(lo), abs(hi)) <= MAX_LOGODDS)
 
 
 def _coerce(value: Any, annotation: Any, where: str) -> Any:

@@ -34,38 +34,39 @@ NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
            landmarks: Sequence[Landmark], occupied_thresh: float,
            window: tuple[int, int, int, int] | None = None, scale: int = 1,
-           shrink: int = 1) -> Image.Image:
+           shrink: int = 1, into: tuple[Image.Image, int, int] | None = None) -> Image.Image:
     """The S ∪ D picture, north up: ``window`` (col0, row0, col1, row1, cells; default the
     whole grid), ``scale`` pixels per cell, or one pixel per ``shrink`` × ``shrink`` cells
     (the darkest of them, red if any is dynamic: walls and movers stay visible); the path
-    and landmarks drawn at that scale."""
+    and landmarks drawn at that scale. Drawn on a new image, or ``into`` (image, left, top)
+    an existing one at that place (a frame: no second copy of a large picture)."""
     rows, cols = static.shape
     c0, r0, c1, r1 = window or (0, 0, cols, rows)
     k = shrink
     height, width = -(-(r1 - r0) // k), -(-(c1 - c0) // k)
-    rgb = np.empty((height, width, 3), np.uint8)  # (row 0 = top)
+    if into is None:
+        into = (Image.new("RGB", (width * scale, height * scale)), 0, 0)
+    image, left, top = into
     step = BAND_ROWS - BAND_ROWS % k
-    for top in range(r0, r1, step):  # a band of rows at a time: the map is never held whole
-        bottom = min(top + step, r1)
-        grey = np.rint(255.0 * (1.0 - static.band(top, bottom)[:, c0:c1])).astype(np.uint8)
-        moving = dynamic.band(top, bottom)[:, c0:c1] > occupied_thresh
+    for first in range(r0, r1, step):  # a band of rows at a time: the map is never held whole
+        last = min(first + step, r1)
+        grey = np.rint(255.0 * (1.0 - static.band(first, last)[:, c0:c1])).astype(np.uint8)
+        moving = dynamic.band(first, last)[:, c0:c1] > occupied_thresh
         if k > 1:
             grey, moving = _block(grey, k, 255, np.minimum), _block(moving, k, False, np.maximum)
-        first = height - (top - r0) // k - len(grey)  # image rows run from the top
-        band = rgb[first:first + len(grey)]
-        band[:] = grey[::-1, :, None]
-        band[moving[::-1]] = DYNAMIC_RGB
-    image = Image.fromarray(rgb, mode="RGB")
-    del rgb
-    if scale > 1:
-        image = image.resize((image.width * scale, image.height * scale), Image.NEAREST)
+        rgb = np.repeat(grey[::-1, :, None], 3, axis=2)  # (image rows run from the top)
+        rgb[moving[::-1]] = DYNAMIC_RGB
+        band = Image.fromarray(rgb, mode="RGB")
+        if scale > 1:
+            band = band.resize((band.width * scale, band.height * scale), Image.NEAREST)
+        image.paste(band, (left, top + (height - (first - r0) // k - len(grey)) * scale))
     draw = ImageDraw.Draw(image)
     res = static.resolution
     px_per_cell = scale / k
 
     def pixel(x: float, y: float) -> tuple[float, float]:
-        return (((x - static.origin_x) / res - c0) * px_per_cell,
-                (r0 + height * k - (y - static.origin_y) / res) * px_per_cell)
+        return (left + ((x - static.origin_x) / res - c0) * px_per_cell,
+                top + (r0 + height * k - (y - static.origin_y) / res) * px_per_cell)
 
     if len(trajectory) > 1:
         draw.line([pixel(x, y) for x, y in trajectory[:, 1:3]], fill=TRAJECTORY_RGB,
@@ -121,17 +122,31 @@ def _metres(v: float) -> str:
     return f"{v:g} m"
 
 
-def annotate(image: Image.Image, static: OccupancyMap, window: tuple[int, int, int, int],
-             scale: float) -> Image.Image:
-    """The picture framed: metre ticks (map frame) on the left and bottom, a scale bar and a
-    legend below."""
+LEGEND = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
+          ((128, 128, 128), "unknown"), (DYNAMIC_RGB, "dynamic D"),
+          (TRAJECTORY_RGB, "trajectory"), (LANDMARK_RGB["static"], "static landmark"),
+          (LANDMARK_RGB["dynamic"], "dynamic landmark")]
+
+
+def frame(static: OccupancyMap, window: tuple[int, int, int, int], size: tuple[int, int],
+          scale: float) -> tuple[Image.Image, int, int]:
+    """The frame of a picture of ``size`` pixels showing ``window`` at ``scale`` pixels per
+    cell: metre ticks (map frame) on the left and bottom, a scale bar and a legend below.
+    Returns the canvas and where the picture goes in it (left, top)."""
     font = ImageFont.load_default()
     res = static.resolution
     c0, r0, c1, r1 = window
-    left, top, right, legend_h = 56, 10, 16, 64
-    w, h = image.width, image.height
-    canvas = Image.new("RGB", (left + w + right, top + h + 22 + legend_h), PAPER_RGB)
-    canvas.paste(image, (left, top))
+    left, top, right = 56, 10, 16
+    w, h = size
+    width = left + w + right
+    legend, u, y = [], left, top + h + 46  # the legend's entries, wrapped to the width
+    for colour, label in LEGEND:
+        length = font.getlength(label)
+        if u + 16 + length > width - right and u > left:
+            u, y = left, y + 16
+        legend.append((u, y, colour, label))
+        u += int(14 + length + 14)
+    canvas = Image.new("RGB", (width, y + 18), PAPER_RGB)
     draw = ImageDraw.Draw(canvas)
     draw.rectangle((left - 1, top - 1, left + w, top + h), outline=INK_RGB)
     px_per_m = scale / res
@@ -154,20 +169,10 @@ def annotate(image: Image.Image, static: OccupancyMap, window: tuple[int, int, i
     draw.rectangle((left, y, left + bar_m * px_per_m, y + 5), fill=INK_RGB)
     draw.text((left + bar_m * px_per_m + 6, y + 3), f"{_metres(bar_m)}   (cell {res:g} m)",
               fill=INK_RGB, font=font, anchor="lm")
-    # Legend: what each colour means.
-    entries = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
-               ((128, 128, 128), "unknown"), (DYNAMIC_RGB, "dynamic D"),
-               (TRAJECTORY_RGB, "trajectory"), (LANDMARK_RGB["static"], "static landmark"),
-               (LANDMARK_RGB["dynamic"], "dynamic landmark")]
-    u, y = left, top + h + 46
-    for colour, label in entries:
-        size = draw.textlength(label, font=font)
-        if u + 16 + size > canvas.width - right and u > left:
-            u, y = left, y + 16
+    for u, y, colour, label in legend:  # what each colour means
         draw.rectangle((u, y, u + 10, y + 10), fill=colour, outline=INK_RGB)
         draw.text((u + 14, y + 5), label, fill=INK_RGB, font=font, anchor="lm")
-        u += int(14 + size + 14)
-    return canvas.crop((0, 0, canvas.width, min(canvas.height, y + 18)))
+    return canvas, left, top
 
 
 def picture_scale(window: tuple[int, int, int, int]) -> tuple[int, int]:
@@ -185,9 +190,12 @@ def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndar
     very large), framed; and its pixels per cell."""
     window = content_window(static, trajectory, landmarks, occupied_thresh)
     scale, shrink = picture_scale(window)
-    image = render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale,
-                   shrink)
-    return annotate(image, static, window, scale / shrink), scale / shrink
+    c0, r0, c1, r1 = window
+    size = (-(-(c1 - c0) // shrink) * scale, -(-(r1 - r0) // shrink) * scale)
+    framed = frame(static, window, size, scale / shrink)
+    render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
+           into=framed)
+    return framed[0], scale / shrink
 
 
 def write_picture(path: Path, static: OccupancyMap, dynamic: OccupancyMap,

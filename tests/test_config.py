@@ -20,6 +20,8 @@ def test_defaults_and_overrides(tmp_path):
     ("[map]\nresolution_m = 'fine'\n", "expected float"),
     ("[map]\nresolution_m = -1.0\n", "must be in \\[0.005, 10\\] m"),
     ("[map\n", "not valid TOML"),
+    ("[map]\np_hit = 0.5000001\n", "map: the grids store log-odds as int16 steps"),
+    ("[dynamic]\np_clamp_max = 0.999999999999999\n", "dynamic: .* the clamps within"),
 ])
 def test_bad_config_is_an_error(tmp_path, text, message):
     p = tmp_path / "c.toml"

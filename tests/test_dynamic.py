@@ -20,7 +20,7 @@ from dynslam_cli.mapping.dynamic import (
     classify_neighbourhood,
     classify_static,
 )
-from dynslam_cli.mapping.grid import GridStack, logit
+from dynslam_cli.mapping.grid import GridStack, logit, probability, steps
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.types import Pose2D, Scan
 
@@ -39,15 +39,15 @@ def test_table_rows(prev, obs, static, dynamic):
     assert TABLE_1[(prev, obs)] == static
     assert TABLE_2[(prev, obs)] == dynamic
     col = 1 if obs == OCCUPIED else 0
-    expect = {"high": MODEL.high, "low": MODEL.low}
+    expect = {"high": steps(MODEL.high), "low": steps(MODEL.low)}
     assert MODEL.table(TABLE_1)[prev, col] == expect[static]
     assert MODEL.table(TABLE_2)[prev, col] == expect[dynamic]
 
 
 def test_classify_static_thresholds():
-    p = np.array([0.05, 0.1, 0.5, 0.9, 0.95])
-    assert list(classify_static(np.log(p / (1 - p)), 0.1, 0.9)) == [
-        FREE, UNKNOWN, UNKNOWN, UNKNOWN, OCCUPIED]
+    p = np.array([0.05, 0.099, 0.101, 0.5, 0.899, 0.901, 0.95])
+    assert list(classify_static(steps(np.log(p / (1 - p))), 0.1, 0.9)) == [
+        FREE, FREE, UNKNOWN, UNKNOWN, UNKNOWN, OCCUPIED, OCCUPIED]
 
 
 def test_neighbourhood_rule():
@@ -58,7 +58,7 @@ def test_neighbourhood_rule():
     s[:, 3] = logit(0.98)
     s[0, 0] = 0.0
     rows, cols = np.divmod(np.arange(25), 5)
-    g.layers["static"][g.flat_cells(rows, cols)] = s.reshape(-1)  # (all in the first tile)
+    g.layers["static"][g.flat_cells(rows, cols)] = steps(s.reshape(-1))  # (all in the first tile)
 
     def at(r: int, c: int) -> np.ndarray:
         return g.flat_cells(np.array([r]), np.array([c]))
@@ -84,8 +84,7 @@ def _cell(slam: DynamicSlam, layer: str, x: float, y: float) -> float:
     g = slam.grids
     r = slam.config.map.resolution_m
     flat = g.flat_cells(np.array([int(np.floor(y / r))]), np.array([int(np.floor(x / r))]))
-    p = g.layers[layer][flat[0]] if flat[0] >= 0 else 0.0
-    return float(1 / (1 + np.exp(-p)))
+    return float(probability(g.layers[layer][flat])[0]) if flat[0] >= 0 else 0.5
 
 
 def test_box_story_from_the_paper():

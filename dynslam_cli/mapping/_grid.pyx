@@ -15,6 +15,12 @@ from libc.stdlib cimport calloc, free, malloc, realloc
 from cpython.pyport cimport PY_SSIZE_T_MIN
 
 ctypedef unsigned char u8
+ctypedef short cell_t  # a layer's stored log-odds, in steps of LOGODDS_STEP
+
+# Log-odds are stored as int16 multiples of this step (±32 log-odds: any clamp short of
+# p = 1 − 1e-13); a power of two, so stored · step is exact in float and double.
+cdef double STEP = 1.0 / 1024.0
+LOGODDS_STEP = STEP
 
 
 # -- beam tracing and the two-map update ----------------------------------------------------
@@ -119,7 +125,7 @@ def beam_extent(double sx, double sy, double sth, const double[::1] ranges,
     return x0, y0, x1, y1
 
 
-def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize_t tr0,
+def trace_beams(u8[::1] listed, int mark, int[::1] table, Py_ssize_t tr0,
                 Py_ssize_t tc0, Py_ssize_t tcols, int[::1] tile_row, int[::1] tile_col,
                 Py_ssize_t count, double res, Py_ssize_t row0, Py_ssize_t col0, double sx,
                 double sy, double sth, const double[::1] ranges, const double[::1] angles,
@@ -127,9 +133,9 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
     """(free cells, hit cells, tiles stored) of one scan from the sensor pose (see
     GridStack.observe): each hit's end cell, and the cells sampled every ``res`` along each
     beam up to one cell short of a hit (to the cap for no return), less any cell hit; each
-    cell listed once, which ``listed[cell] = mark`` records (``mark``: a value no earlier
-    scan since the last reset used). Marks them in ``seen``, and stores the tiles they fall
-    in (the first ``count`` of ``tile_row``/``tile_col`` are in use). Samples step in cells
+    cell listed once, which ``listed[cell] = mark`` records (``mark``: a value ≥ 2 no
+    earlier scan since the last reset used; a cell never seen stays 0). Stores the tiles
+    they fall in (the first ``count`` of ``tile_row``/``tile_col`` are in use). Samples step in cells
     from the sensor's position relative to cell (row0, col0), the grid extent's corner,
     which must hold every beam's extent (beam_extent). Free and hit are None when the tile
     arrays ran out of room: grow them and call again."""
@@ -176,7 +182,6 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
             c = cell_in(tid, end[i, 0], end[i, 1])
             if listed[c] != mark:
                 listed[c] = mark
-                seen[c] = 1
                 hv[nh] = c
                 nh += 1
         for i in range(n):
@@ -197,7 +202,6 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
                 c = base + ((R & MASK) << SHIFT) + (C & MASK)
                 new = listed[c] != mark  # branch-free: about half the samples are new
                 listed[c] = mark
-                seen[c] = 1
                 fv[nf] = c
                 nf += new
     if full:
@@ -205,7 +209,7 @@ def trace_beams(u8[::1] seen, u8[::1] listed, int mark, int[::1] table, Py_ssize
     return free[:nf], hit[:nh], t.count
 
 
-cdef inline int window_state(const float* logodds, Tiles* t, Py_ssize_t R, Py_ssize_t C,
+cdef inline int window_state(const cell_t* logodds, Tiles* t, Py_ssize_t R, Py_ssize_t C,
                              Py_ssize_t radius, double low, double high) noexcept nogil:
     """2 Occupied if any cell of the window around world cell (R, C) is > high, 0 Free if
     every one is < low, else 1 Unknown; cells not stored count 0 (p = 0.5)."""
@@ -215,7 +219,7 @@ cdef inline int window_state(const float* logodds, Tiles* t, Py_ssize_t R, Py_ss
     for dr in range(-radius, radius + 1):
         for dc in range(-radius, radius + 1):
             tid = tile_of(t, R + dr, C + dc)
-            v = logodds[cell_in(tid, R + dr, C + dc)] if tid >= 0 else 0.0
+            v = logodds[cell_in(tid, R + dr, C + dc)] * STEP if tid >= 0 else 0.0
             if v > high:
                 return 2
             if not v < low:
@@ -223,7 +227,7 @@ cdef inline int window_state(const float* logodds, Tiles* t, Py_ssize_t R, Py_ss
     return 0 if free else 1
 
 
-def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells, Py_ssize_t radius,
+def classify_cells(const cell_t[::1] logodds, const Py_ssize_t[::1] cells, Py_ssize_t radius,
                    int[::1] table, Py_ssize_t tr0, Py_ssize_t tc0, Py_ssize_t tcols,
                    int[::1] tile_row, int[::1] tile_col, Py_ssize_t count, double low,
                    double high):
@@ -243,7 +247,7 @@ def classify_cells(const float[::1] logodds, const Py_ssize_t[::1] cells, Py_ssi
     return out
 
 
-def classify_world_cells(const float[::1] logodds, const Py_ssize_t[::1] rows,
+def classify_world_cells(const cell_t[::1] logodds, const Py_ssize_t[::1] rows,
                          const Py_ssize_t[::1] cols, Py_ssize_t radius, int[::1] table,
                          Py_ssize_t tr0, Py_ssize_t tc0, Py_ssize_t tcols, int[::1] tile_row,
                          int[::1] tile_col, Py_ssize_t count, double low, double high):
@@ -258,13 +262,14 @@ def classify_world_cells(const float[::1] logodds, const Py_ssize_t[::1] rows,
     return out
 
 
-def add_clamped(float[::1] logodds, const Py_ssize_t[::1] cells,
-                const signed char[::1] states, const double[::1] value, double lo, double hi):
-    """logodds[cell] += value[state of the cell], clamped to [lo, hi] (cells listed once)."""
+def add_clamped(cell_t[::1] logodds, const Py_ssize_t[::1] cells,
+                const signed char[::1] states, const int[::1] value, int lo, int hi):
+    """logodds[cell] += value[state of the cell], clamped to [lo, hi] (all in steps; cells
+    listed once)."""
     cdef Py_ssize_t i, c
-    cdef double v
+    cdef int v
     with nogil:
         for i in range(cells.shape[0]):
             c = cells[i]
             v = logodds[c] + value[states[i]]
-            logodds[c] = <float>(lo if v < lo else hi if v > hi else v)
+            logodds[c] = <cell_t>(lo if v < lo else hi if v > hi else v)

@@ -16,7 +16,7 @@ import numpy as np
 
 from dynslam_cli.geometry import compose
 from dynslam_cli.mapping import _grid
-from dynslam_cli.mapping.grid import GridStack, Observation, logit
+from dynslam_cli.mapping.grid import LOGODDS_STEP, GridStack, Observation, logit, steps
 from dynslam_cli.types import Pose2D, Scan
 
 if TYPE_CHECKING:
@@ -70,17 +70,25 @@ class InverseModel:
         return cls(logit(high), logit(low), logit(clamp_min), logit(clamp_max))
 
     def table(self, rows: dict[tuple[int, int], str]) -> np.ndarray:
-        """The table as a 3×2 array of log-odds, indexed [S^{t-1} state, o^t state]; stored
-        by columns, so each observation's column is a contiguous array."""
+        """The table as a 3×2 array of log-odds in the grid's steps (int32), indexed
+        [S^{t-1} state, o^t state]; stored by columns, so each observation's column is a
+        contiguous array."""
         out = np.zeros((3, 2), order="F")
         for (prev, obs), value in rows.items():
             out[prev, 1 if obs == OCCUPIED else 0] = self.high if value == HIGH else self.low
-        return out
+        return np.asfortranarray(steps(out))
+
+    def clamp_steps(self) -> tuple[int, int]:
+        """The clamp in the grid's steps."""
+        lo, hi = steps((self.clamp_min, self.clamp_max))
+        return int(lo), int(hi)
 
 
-def classify_static(logodds: np.ndarray, low: float, high: float) -> np.ndarray:
-    """Free / Unknown / Occupied state of S^{t-1} cells (thresholds as probabilities)."""
-    state = np.full(logodds.shape, UNKNOWN, dtype=np.int8)
+def classify_static(stored: np.ndarray, low: float, high: float) -> np.ndarray:
+    """Free / Unknown / Occupied state of S^{t-1} cells (their stored log-odds; thresholds
+    as probabilities)."""
+    logodds = stored * LOGODDS_STEP  # (exact: the step is a power of two)
+    state = np.full(stored.shape, UNKNOWN, dtype=np.int8)
     state[logodds < logit(low)] = FREE
     state[logodds > logit(high)] = OCCUPIED
     return state
@@ -183,9 +191,8 @@ class DynamicMapper:
 def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndarray,
                          hit_prev: np.ndarray, table: np.ndarray, model: InverseModel) -> None:
     """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
-    to the model's range."""
+    to the model's range; in the layer's steps, so the sums are exact."""
     flat = layer.reshape(-1)
-    _grid.add_clamped(flat, obs.free, free_prev, table[:, 0], model.clamp_min,
-                        model.clamp_max)
-    _grid.add_clamped(flat, obs.hit, hit_prev, table[:, 1], model.clamp_min,
-                        model.clamp_max)
+    lo, hi = model.clamp_steps()
+    _grid.add_clamped(flat, obs.free, free_prev, table[:, 0], lo, hi)
+    _grid.add_clamped(flat, obs.hit, hit_prev, table[:, 1], lo, hi)

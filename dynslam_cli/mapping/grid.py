@@ -19,6 +19,8 @@ from dynslam_cli.mapping import _grid
 from dynslam_cli.types import Pose2D
 
 TILE = _grid.TILE_SIDE  # cells on a tile's side
+LOGODDS_STEP = _grid.LOGODDS_STEP  # a layer stores log-odds as int16 multiples of this
+MAX_LOGODDS = 32767 * LOGODDS_STEP  # so a clamp can be at most this (p = 1 − 1.3e-14)
 
 
 class MapExtentError(DynslamError):
@@ -30,9 +32,15 @@ def logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
-def probability(logodds: np.ndarray) -> np.ndarray:
-    """Probability from log-odds (elementwise)."""
-    p = np.exp(-logodds.astype(np.float64))  # 1 / (1 + e^-l), in one buffer
+def steps(logodds: float | np.ndarray) -> np.ndarray:
+    """Log-odds as a layer stores them: the nearest whole number of ``LOGODDS_STEP`` (int32;
+    the layers are int16, so values to store must lie within ±MAX_LOGODDS)."""
+    return np.rint(np.asarray(logodds, dtype=np.float64) / LOGODDS_STEP).astype(np.int32)
+
+
+def probability(stored: np.ndarray) -> np.ndarray:
+    """Probability from a layer's stored log-odds (elementwise)."""
+    p = np.exp(stored * -LOGODDS_STEP)  # 1 / (1 + e^-l), in one buffer (float64)
     p += 1.0
     return np.reciprocal(p, out=p)
 
@@ -94,13 +102,15 @@ class OccupancyMap:
 
 
 class GridStack:
-    """Named log-odds layers (float32, 0 = p 0.5 = unknown) over one grid, stored by the area
-    seen: in tiles of ``TILE × TILE`` cells, each allocated when a beam first reaches it.
+    """Named log-odds layers (int16 in steps of ``LOGODDS_STEP``, 0 = p 0.5 = unknown) over
+    one grid, stored by the area seen: in tiles of ``TILE × TILE`` cells, each allocated when
+    a beam first reaches it. With the byte of marks that lists each cell once per scan (0:
+    never seen), a cell costs 2 bytes a layer + 1.
 
     The grid's *extent* (``origin_row``, ``origin_col``, ``shape``: a rectangle of world
     cells that grows with a margin to hold every scan) bounds the map and fixes where beams
     are sampled; memory follows the tiles. A cell's *flat index* addresses it in every
-    layer (``layers[name]``, ``seen``): tile id · TILE² + its place in the tile.
+    layer (``layers[name]``): tile id · TILE² + its place in the tile.
     """
 
     def __init__(self, resolution: float, grow_margin: float, names: tuple[str, ...],
@@ -112,10 +122,10 @@ class GridStack:
         self.origin_col = 0  # world cell index of the extent's column 0
         self.origin_row = 0
         self._shape = (0, 0)
-        self.layers: dict[str, np.ndarray] = {n: np.zeros(0, np.float32) for n in names}
-        self.seen = np.zeros(0, np.uint8)
-        self._listed = np.zeros(0, np.uint8)  # the mark of the last scan that listed a cell
-        self._mark = 0
+        self.layers: dict[str, np.ndarray] = {n: np.zeros(0, np.int16) for n in names}
+        # the mark of the last scan that listed a cell: 0 never, 1 before the marks wrapped
+        self._listed = np.zeros(0, np.uint8)
+        self._mark = 1
         # tiles: world tile (row, col) of each stored tile; the extent's table of tile ids
         self.tile_rows = np.zeros(0, np.int32)
         self.tile_cols = np.zeros(0, np.int32)
@@ -184,7 +194,7 @@ class GridStack:
             return a
 
         self.layers = {name: grown(a) for name, a in self.layers.items()}
-        self.seen, self._listed = grown(self.seen), grown(self._listed)
+        self._listed = grown(self._listed)
         self.tile_rows.resize(capacity, refcheck=False)
         self.tile_cols.resize(capacity, refcheck=False)
 
@@ -247,23 +257,28 @@ class GridStack:
         self.ensure(x0 - pad, y0 - pad, x1 + pad, y1 + pad)
         while True:
             self._mark += 1
-            if self._mark == 256:  # (marks are bytes: start again from a clean slate)
-                self._listed[:] = 0
-                self._mark = 1
+            if self._mark == 256:  # (marks are bytes: start again, keeping "seen" as 1)
+                np.minimum(self._listed, 1, out=self._listed)
+                self._mark = 2
             # Free space stops one cell short of a hit: the cell a surface passes through is
             # often partly free, and marking it free from one angle and hit from another
             # would erode walls and flicker D.
             free, hit, self.tiles = _grid.trace_beams(
-                self.seen, self._listed, self._mark, *self._tiles_args(), self.resolution,
+                self._listed, self._mark, *self._tiles_args(), self.resolution,
                 self.origin_row, self.origin_col, *beams)
             if free is not None:
                 return Observation(free=free, hit=hit)
             self._grow_tiles(len(self.tile_rows) + max(64, len(self.tile_rows) // 8))  # again
 
+    @property
+    def seen(self) -> np.ndarray:
+        """Whether each stored cell has been seen (bool, by flat index)."""
+        return self._listed[:self.tiles * TILE * TILE] != 0
+
     def window(self, name: str, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-        """The layer's values (float32) over extent rows r0:r1, columns c0:c1, 0 where no
-        tile is stored (everywhere for a layer not kept)."""
-        out = np.zeros((r1 - r0, c1 - c0), np.float32)
+        """The layer's stored values (int16 steps) over extent rows r0:r1, columns c0:c1, 0
+        where no tile is stored (everywhere for a layer not kept)."""
+        out = np.zeros((r1 - r0, c1 - c0), np.int16)
         source = self.layers.get(name)
         if source is None:
             return out
@@ -298,12 +313,12 @@ class GridStack:
         n = self.tiles
         if not n:
             return 0, min(1, self.shape[0]), 0, min(1, self.shape[1])
-        seen = self.seen[:n * TILE * TILE].reshape(n, TILE, TILE).view(bool)
+        marks = self._listed[:n * TILE * TILE].reshape(n, TILE, TILE)  # (0: not seen)
         tr, tc = self.tile_rows[:n].astype(np.int64), self.tile_cols[:n].astype(np.int64)
 
         def extreme(tiles: np.ndarray, axis: int, last: bool) -> int:
             """The lowest (or highest) seen row (axis 1) or column (axis 2) within tiles."""
-            hits = np.flatnonzero(seen[tiles].any(axis=3 - axis).any(axis=0))
+            hits = np.flatnonzero(marks[tiles].any(axis=3 - axis).any(axis=0))
             return int(hits[-1] if last else hits[0])
 
         r_lo = tr.min() * TILE + extreme(np.flatnonzero(tr == tr.min()), 1, False)
@@ -319,7 +334,7 @@ class GridStack:
         """What the grid holds, for the summary: tiles, cells stored and seen, bytes per cell
         seen."""
         cells = self.tiles * TILE * TILE
-        per_cell = sum(a.itemsize for a in (*self.layers.values(), self.seen, self._listed))
-        seen = int(np.count_nonzero(self.seen[:cells]))
+        per_cell = sum(a.itemsize for a in (*self.layers.values(), self._listed))
+        seen = int(np.count_nonzero(self._listed[:cells]))
         return {"tiles": self.tiles, "cells_stored": cells, "cells_seen": seen,
                 "bytes_per_seen_cell": round(per_cell * cells / seen, 2) if seen else 0.0}
