@@ -152,6 +152,13 @@ class Config:
             (c.min_points >= 3 and c.min_length_m > 0, "corners: min_points >= 3, length > 0"),
             (0 < c.min_angle_deg < 90, "corners.min_angle_deg must be in (0, 90)"),
         ]
+        lp = self.loop
+        checks += [
+            (lp.node_distance_m > 0 and lp.node_angle_deg > 0,
+             "loop.node_distance_m and node_angle_deg must be > 0"),
+            (lp.pending_closures >= 1, "loop.pending_closures must be >= 1"),
+            (lp.online_nodes >= 2, "loop.online_nodes must be >= 2"),
+        ]
         checks += [(_storable(values), f"{name}: {_STORABLE}") for name, values in (
             ("map", (m.p_hit, m.p_miss, m.p_clamp_min, m.p_clamp_max)),
             ("dynamic", (d.p_high, d.p_low, d.p_clamp_min, d.p_clamp_max)))]

@@ -82,6 +82,63 @@ def test_graph_spreads_a_loop_closure_over_the_chain():
     assert np.allclose(g.poses[0], 0.0)  # the first node holds the frame
 
 
+def test_an_optimization_over_part_of_the_graph_moves_only_that_part():
+    """Online, a closure moves only the nodes nearest to it through the graph (a long log's
+    closure costs the same as an early one's); the rest hold, and the part that moves still
+    takes up the closure's error."""
+    g = PoseGraph()
+    info = np.diag([100.0, 100.0, 400.0])
+    g.add_node(np.zeros(3))
+    for k in range(1, 40):  # a straight chain whose odometry says it bends
+        g.add_node(g.poses[k - 1] + np.array([1.0, 0.0, 0.0]))
+        g.add_edge(k - 1, k, np.array([1.0, 0.0, 0.0]), info)
+    g.poses[20:, 1] += 0.5  # the later half has drifted sideways
+    g.add_edge(19, 39, np.array([20.0, 0.0, 0.0]), np.diag([1e4, 1e4, 1e5]), robust=True)
+    before = g.poses.copy()
+    moving = np.arange(30, 40)
+    e0 = edge_errors(g.poses, np.array([19]), np.array([39]), np.array([[20.0, 0, 0]]))[0]
+    g.optimize(nodes=moving)
+    e1 = edge_errors(g.poses, np.array([19]), np.array([39]), np.array([[20.0, 0, 0]]))[0]
+    assert np.array_equal(g.poses[:30], before[:30])  # held where they were
+    assert not np.allclose(g.poses[30:], before[30:])
+    assert abs(e1[0, 1]) < 0.5 * abs(e0[0, 1])
+
+
+def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkeypatch):
+    """Above DIRECT_MAX_NODES the steps come from conjugate gradients: the same optimum."""
+    from dynslam_cli.localization import graph
+
+    def drifted_loop() -> PoseGraph:
+        g = PoseGraph()
+        info = np.diag([100.0, 100.0, 400.0])
+        g.add_node(np.zeros(3))
+        for k in range(1, 60):  # a circle of 60 steps driven with a biased turn
+            z = np.array([1.0, 0.0, 2 * math.pi / 60 + math.radians(0.5)])
+            p = g.poses[k - 1]
+            g.add_node(p + np.array([math.cos(p[2]), math.sin(p[2]), z[2]]))
+            g.add_edge(k - 1, k, z, info)
+        g.add_edge(0, 59, np.array([0.0, -1.0, -2 * math.pi / 60]), np.eye(3) * 1e3, robust=True)
+        return g
+
+    direct = drifted_loop()
+    direct.optimize()
+    monkeypatch.setattr(graph, "DIRECT_MAX_NODES", 10)
+    iterative = drifted_loop()
+    iterative.optimize()
+    assert np.abs(direct.poses - iterative.poses).max() < 1e-6
+    assert not np.allclose(direct.poses, drifted_loop().poses)  # (it did move)
+
+
+def test_graph_distance_stops_at_the_nearest_nodes():
+    """The window of an online optimization: the nodes nearest to the closure's two ends,
+    and no more than asked for."""
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    for x in np.arange(0.0, 20.01, 0.5):
+        closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
+    d = closer._links.shortest_paths([0, 40], max_nodes=6)
+    assert sorted(np.flatnonzero(np.isfinite(d))) == [0, 1, 2, 38, 39, 40]
+
+
 def test_correlative_match_finds_a_large_offset():
     """The place seen again 1.2 m and 9° away from where the drifted estimate says."""
     old = Pose2D(0.0, 0.0, 0.0)

@@ -78,29 +78,38 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
 
 def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
                    const Py_ssize_t[::1] to, const double[::1] length, Py_ssize_t n,
-                   Py_ssize_t source, double limit):
-    """Dijkstra from ``source`` over an undirected graph of ``n`` nodes kept as adjacency
-    lists (node v's first half-edge is head[v], each half-edge e leads to to[e] with
-    length[e] and is followed by nxt[e]; -1 ends a list): the distance to every node, ∞
-    beyond ``limit`` (the search never goes past it, so its cost is that of the graph
-    within the limit)."""
-    if not 0 <= source < n or head.shape[0] < n:
-        raise ValueError("source or adjacency lists do not cover the graph's nodes")
+                   const Py_ssize_t[::1] sources, double limit, Py_ssize_t max_nodes):
+    """Dijkstra from the ``sources`` over an undirected graph of ``n`` nodes kept as
+    adjacency lists (node v's first half-edge is head[v], each half-edge e leads to to[e]
+    with length[e] and is followed by nxt[e]; -1 ends a list): the distance of every node to
+    the nearest source, ∞ beyond ``limit`` and beyond the ``max_nodes`` nearest nodes (the
+    search stops at either, so its cost is that of the graph within them)."""
+    cdef Py_ssize_t s
+    if head.shape[0] < n or sources.shape[0] == 0:
+        raise ValueError("no source, or adjacency lists that do not cover the graph's nodes")
+    for s in range(sources.shape[0]):
+        if not 0 <= sources[s] < n:
+            raise ValueError("a source is not a node of the graph")
     dist = np.full(n, INFINITY)
+    settled_arr = np.zeros(n, dtype=np.uint8)
     cdef double[::1] d = dist
-    cdef Py_ssize_t cap = 64, size = 0, i, c, e, v, w
+    cdef u8[::1] settled = settled_arr
+    cdef Py_ssize_t cap = 64, size = 0, i, c, e, v, w, count = 0
     cdef double dv, dw
-    cdef double *key = <double *>malloc(cap * sizeof(double))
-    cdef Py_ssize_t *node = <Py_ssize_t *>malloc(cap * sizeof(Py_ssize_t))
+    cdef double *key = <double *>malloc((cap + sources.shape[0]) * sizeof(double))
+    cdef Py_ssize_t *node = <Py_ssize_t *>malloc((cap + sources.shape[0]) * sizeof(Py_ssize_t))
     cdef void *grown
     if key == NULL or node == NULL:
         free(key)
         free(node)
         raise MemoryError()
+    cap += sources.shape[0]
     try:
-        d[source] = 0.0
-        key[0], node[0], size = 0.0, source, 1
-        while size:
+        for s in range(sources.shape[0]):  # (all at 0: already a heap)
+            d[sources[s]] = 0.0
+            key[size], node[size] = 0.0, sources[s]
+            size += 1
+        while size and count < max_nodes:
             dv, v = key[0], node[0]  # pop the heap's least ...
             size -= 1
             i = 0
@@ -115,8 +124,10 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
                 key[i], node[i] = key[c], node[c]
                 i = c
             key[i], node[i] = key[size], node[size]
-            if dv > d[v]:
+            if dv > d[v] or settled[v]:
                 continue  # a stale entry
+            settled[v] = 1
+            count += 1
             e = head[v]
             while e >= 0:
                 w = to[e]
@@ -143,4 +154,6 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
     finally:
         free(key)
         free(node)
+    if size:  # stopped at max_nodes: those reached but not settled are beyond it
+        dist[settled_arr == 0] = INFINITY
     return dist

@@ -102,6 +102,10 @@ class LoopConfig:
     ``pair_drift_deg_per_m`` times the path between their ends)."""
     pair_drift_deg_per_m: float = 0.2
     pending_closures: int = 8
+    online_nodes: int = 2000
+    """While the log runs, an optimization moves at most this many nodes: those nearest,
+    through the graph, to the closure just made (the rest hold until the whole graph is
+    optimized at the end), so a closure costs the same late in a long log as early on."""
 
 
 FIELD_RES_M = 0.05
@@ -297,10 +301,13 @@ class Links:
             self.head[a] = e
             self.count += 1
 
-    def shortest_paths(self, source: int, limit: float) -> np.ndarray:
-        """Distances from ``source`` to every node, ∞ beyond ``limit``."""
+    def shortest_paths(self, sources: list[int], limit: float = math.inf,
+                       max_nodes: int | None = None) -> np.ndarray:
+        """Distances from the nearest of ``sources`` to every node, ∞ beyond ``limit`` and
+        beyond the ``max_nodes`` nearest."""
         return _loops.shortest_paths(self.head, self.nxt, self.to, self.length, self.nodes,
-                                     source, limit)
+                                     np.asarray(sources, dtype=np.intp), limit,
+                                     self.nodes if max_nodes is None else max_nodes)
 
 
 class LoopCloser:
@@ -368,7 +375,7 @@ class LoopCloser:
         the graph near node k)."""
         cfg = self.cfg
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
-        return self._links.shortest_paths(k, limit)
+        return self._links.shortest_paths([k], limit)
 
     def _candidate(self, k: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
@@ -431,7 +438,7 @@ class LoopCloser:
             return False
         if all(c.chi2 <= cfg.agree_chi2 for c in accepted):
             return False  # the graph already agrees: optimize later (finish() always does)
-        self.optimize()
+        self.optimize(around=[k, *(c.old for c in accepted)])
         return True
 
     def add_closures(self, closures: list[Closure]) -> None:
@@ -483,10 +490,16 @@ class LoopCloser:
                 and abs(gap.theta) <= math.radians(cfg.pair_tolerance_deg
                                                    + cfg.pair_drift_deg_per_m * driven))
 
-    def optimize(self, iterations: int = ONLINE_ITERATIONS) -> None:
+    def optimize(self, iterations: int = ONLINE_ITERATIONS, around: list[int] | None = None
+                 ) -> None:
         """Gauss-Newton steps on the graph: a few while the log runs (the next closure goes
-        on from there), to convergence at the end."""
-        self.graph.optimize(iterations)
+        on from there), over the ``online_nodes`` nearest to the nodes ``around`` if the
+        graph is larger; to convergence over the whole graph at the end."""
+        moving = None
+        if around is not None and len(self.front) > self.cfg.online_nodes:
+            near = self._links.shortest_paths(around, max_nodes=self.cfg.online_nodes)
+            moving = np.flatnonzero(np.isfinite(near))
+        self.graph.optimize(iterations, nodes=moving)
         self._fields.clear()  # the submaps were drawn with the old poses
 
     def finish(self) -> None:
