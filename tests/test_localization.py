@@ -152,3 +152,26 @@ def test_no_corner_on_a_smooth_wall_or_an_occlusion_edge():
 def test_no_corner_beyond_the_usable_range():
     far = np.array([[7.5, -9, 7.5, 6], [7.5, 6, -9, 6]], float)
     assert detect_corners(cast(far), ANGLES, 8.0, CornerConfig()) == []
+
+
+def test_kept_scans_come_back_as_they_went_in_in_two_bytes_a_reading_when_they_can():
+    """The scans kept for the final rebuild: readings written to the mm (or the cm, past
+    65 m) take 2 bytes, any others 4 (float32, as the rebuild reads them); every reading,
+    no-returns and invalid ones included, comes back as the float32 it was."""
+    from dynslam_cli.pipeline import ScanStore
+    from dynslam_cli.types import Scan
+
+    rng = np.random.default_rng(3)
+    angles = np.linspace(-1.5, 1.5, 181)
+    mm = np.round(rng.uniform(0.1, 8.0, 181), 3)
+    mm[[4, 9]] = [np.inf, np.nan]
+    cm = np.round(rng.uniform(0.1, 81.91, 181), 2)  # (beyond 65.5 m in mm)
+    raw = rng.uniform(0.1, 8.0, 181)  # a float32 bag's readings
+    store = ScanStore()
+    for k, ranges in enumerate((mm, cm, raw)):
+        store.add(Scan(float(k), ranges, angles, 80.0, Pose2D(), Pose2D(0.1, 0.0, 0.0)))
+    assert len(store._codes) == 2 * 181 and len(store._floats) == 181
+    for scan, ranges in zip(store.scans(), (mm, cm, raw), strict=True):
+        assert np.array_equal(scan.ranges, ranges.astype(np.float32).astype(np.float64),
+                              equal_nan=True)
+        assert scan.angles is angles and scan.laser == Pose2D(0.1, 0.0, 0.0)

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 # cython: initializedcheck=False
-"""The pose graph's sparse solve: minimum-degree order and the LDLᵀ factorization.
+"""The pose graph's sparse solves: minimum-degree order and the LDLᵀ factorization, and
+preconditioned conjugate gradients for large graphs.
 
 Compiled by ``pip install`` (setup.py); the algorithm and its documentation live in
 ``dynslam_cli.localization.graph``. No fast-math: results are the same on every run. The long loops release the
@@ -244,4 +245,67 @@ def solve_spd(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indices,
             y[k] -= lx[p] * y[li[p]]
     for k in range(n):
         x[perm[k]] = y[k]
+    return x_arr
+
+
+cdef void _precondition(const double[:, :, ::1] inverse, const double* r, double* z
+                        ) noexcept nogil:
+    """z = M⁻¹ r with M⁻¹ block diagonal (3×3 blocks)."""
+    cdef Py_ssize_t b, a
+    for b in range(inverse.shape[0]):
+        for a in range(3):
+            z[3 * b + a] = (inverse[b, a, 0] * r[3 * b] + inverse[b, a, 1] * r[3 * b + 1]
+                            + inverse[b, a, 2] * r[3 * b + 2])
+
+
+def conjugate_gradients(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indices,
+                        const double[::1] data, const double[:, :, ::1] inverse,
+                        const double[::1] rhs, double tolerance, Py_ssize_t max_steps):
+    """x with A x = rhs, A symmetric positive definite in compressed columns (duplicates
+    summed), by conjugate gradients preconditioned with ``inverse`` (the inverses of A's
+    3×3 diagonal blocks), until the residual is ``tolerance`` of rhs's (or ``max_steps``)."""
+    cdef Py_ssize_t n = rhs.shape[0], k, p, step
+    if inverse.shape[0] * 3 != n or indptr.shape[0] != n + 1:
+        raise ValueError("the preconditioner or the matrix does not fit the right-hand side")
+    x_arr, r_arr = np.zeros(n), np.array(rhs, dtype=np.float64)
+    z_arr, d_arr, q_arr = np.empty(n), np.empty(n), np.empty(n)
+    cdef double[::1] x = x_arr, r = r_arr, z = z_arr, d = d_arr, q = q_arr
+    cdef double rz = 0.0, rz_new, dq, alpha, beta, rr, goal = 0.0
+    with nogil:
+        for k in range(n):
+            goal += rhs[k] * rhs[k]
+        goal *= tolerance * tolerance
+        _precondition(inverse, &r[0], &z[0])
+        for k in range(n):
+            d[k] = z[k]
+            rz += r[k] * z[k]
+        for step in range(max_steps):
+            if goal == 0.0:
+                break
+            for k in range(n):
+                q[k] = 0.0
+            for k in range(n):  # q = A d, column by column
+                for p in range(indptr[k], indptr[k + 1]):
+                    q[indices[p]] += data[p] * d[k]
+            dq = 0.0
+            for k in range(n):
+                dq += d[k] * q[k]
+            if dq <= 0.0:
+                break  # (not positive definite along d: stop where we are)
+            alpha = rz / dq
+            rr = 0.0
+            for k in range(n):
+                x[k] += alpha * d[k]
+                r[k] -= alpha * q[k]
+                rr += r[k] * r[k]
+            if rr <= goal:
+                break
+            _precondition(inverse, &r[0], &z[0])
+            rz_new = 0.0
+            for k in range(n):
+                rz_new += r[k] * z[k]
+            beta = rz_new / rz
+            rz = rz_new
+            for k in range(n):
+                d[k] = z[k] + beta * d[k]
     return x_arr

@@ -21,7 +21,8 @@ CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 # Above this many moving nodes a step is solved by conjugate gradients instead of LDLᵀ: where
 # a place is revisited for hours the factor fills in faster than the graph grows (4 h in one
 # hall: 15 570 nodes, 11 M nonzeros in L, 21 s a step; conjugate gradients 1.3 s, the same
-# step to 5e-8 m).
+# step to 5e-8 m). Compiled here rather than scipy's: importing scipy.sparse.linalg costs
+# 30 MB, a tenth of a long log's memory bound.
 DIRECT_MAX_NODES = 2000
 CG_TOLERANCE = 1e-8  # relative residual of the conjugate-gradient solve
 
@@ -122,8 +123,9 @@ class PoseGraph:
                 np.add.at(diagonal, li[moves_i], (at_w @ a)[moves_i])
                 np.add.at(diagonal, lj[moves_j], (bt_w @ b)[moves_j])
                 diagonal[0] += np.eye(3) * (1e12 if len(anchor) else 0.0)
-                step = -_conjugate_gradients(indptr, indices, vals[by_column], diagonal,
-                                             g).reshape(-1, 3)
+                step = -_graph.conjugate_gradients(indptr, indices, vals[by_column],
+                                                   np.linalg.inv(diagonal), g, CG_TOLERANCE,
+                                                   30 * m).reshape(-1, 3)
             else:
                 try:
                     step = -_graph.solve_spd(indptr, indices, vals[by_column], order,
@@ -134,22 +136,6 @@ class PoseGraph:
             self.poses[nodes, 2] = wrap_angles(self.poses[nodes, 2])
             if np.abs(step[:, :2]).max() < 1e-4 and np.abs(step[:, 2]).max() < 1e-5:
                 break
-
-
-def _conjugate_gradients(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray,
-                         diagonal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """x with H x = rhs (H given in compressed columns, duplicates summed), by conjugate
-    gradients preconditioned with the inverse of H's 3×3 diagonal blocks (``diagonal``)."""
-    from scipy.sparse import csc_matrix  # (only large graphs get here: no import cost else)
-    from scipy.sparse.linalg import LinearOperator, cg
-
-    n = len(rhs)
-    h = csc_matrix((data, indices, indptr), shape=(n, n))
-    inverse = np.linalg.inv(diagonal)
-    m = LinearOperator((n, n), matvec=lambda v: (inverse @ v.reshape(-1, 3, 1)).ravel(),
-                       dtype=np.float64)
-    x, _ = cg(h, rhs, rtol=CG_TOLERANCE, maxiter=10 * n, M=m)  # (not converged: still better)
-    return x
 
 
 def _hessian_pattern(blocks: tuple[tuple[np.ndarray, np.ndarray], ...]
