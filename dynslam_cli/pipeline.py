@@ -70,10 +70,12 @@ class ScanStore:
     trajectory at the end: the ranges as float32 (what the rebuild reads), and as 16-bit
     whole millimetres or centimetres where that gives back exactly those float32 values
     (text logs are written to the mm or cm: 2 bytes a reading); the beam angles and mounting
-    poses shared; no Python object per scan (a 4 h log has 144 000 scans)."""
+    poses shared; no Python object per scan (a 4 h log has 144 000 scans). Scans are coded
+    ``BATCH`` at a time, so the coding costs next to nothing a scan."""
 
     UNITS_M = (0.001, 0.01)  # the 16-bit codes count these
     NO_RETURN, INVALID = 65534, 65535  # codes of +inf and NaN
+    BATCH = 256
 
     def __init__(self) -> None:
         self._codes = array("H")  # the 16-bit scans' readings, one after another ...
@@ -85,7 +87,7 @@ class ScanStore:
         self._geometry = array("i")  # per scan: index into _shapes
         self._shapes: list[tuple[np.ndarray, Pose2D]] = []  # (angles, laser) met so far
         self._shape_ids: dict[tuple, int] = {}
-        self._unit = 0  # the unit the last scan fitted (tried first)
+        self._batch: list[np.ndarray] = []  # float32 ranges of scans not coded yet
 
     def add(self, scan: Scan) -> None:
         a, laser = scan.angles, scan.laser
@@ -94,39 +96,40 @@ class ScanStore:
         shape = self._shape_ids.setdefault(key, len(self._shapes))
         if shape == len(self._shapes):
             self._shapes.append((a, laser))
-        ranges = scan.ranges.astype(np.float32)
-        codes, unit = self._encode(ranges)
-        if codes is None:
-            self._where.append(-1 - len(self._floats))
-            self._floats.frombytes(ranges.tobytes())
-        else:
-            self._where.append(len(self._codes))
-            self._codes.frombytes(codes.tobytes())
-        self._kind.append(unit)
+        if self._batch and len(self._batch[0]) != len(a):
+            self._code_batch()  # (a batch is one beam count)
+        self._batch.append(scan.ranges.astype(np.float32))
         self._stamps.append(scan.stamp)
         self._max_range.append(scan.max_range)
         self._geometry.append(shape)
+        if len(self._batch) == self.BATCH:
+            self._code_batch()
 
-    def _encode(self, ranges: np.ndarray) -> tuple[np.ndarray | None, int]:
-        """(16-bit codes, unit index) that decode to exactly ``ranges`` (float32), or
-        (None, -1) if no unit does."""
+    def _code_batch(self) -> None:
+        """Code the waiting scans: each in the coarsest unit that gives back exactly its
+        float32 readings, or kept as float32."""
+        ranges = np.stack(self._batch)
+        self._batch = []
         finite = np.isfinite(ranges)
-        if np.isneginf(ranges).any():
-            return None, -1
-        values = ranges[finite]
-        wide = values.astype(np.float64)
-        for u in (self._unit, 1 - self._unit):
+        special_ok = ~finite & (np.isposinf(ranges) | np.isnan(ranges))
+        kind = np.full(len(ranges), -1, np.int8)
+        codes = np.full(ranges.shape, self.INVALID, np.uint16)
+        codes[np.isposinf(ranges)] = self.NO_RETURN
+        wide = np.where(finite, ranges, 0.0).astype(np.float64)
+        for u in reversed(range(len(self.UNITS_M))):  # the finest fitting unit wins
             k = np.rint(wide / self.UNITS_M[u])
-            if len(k) and not (k.min() >= 0 and k.max() < self.NO_RETURN):
-                continue
-            if not np.array_equal(self._decode_finite(k, u), values):
-                continue
-            codes = np.full(len(ranges), self.INVALID, np.uint16)
-            codes[np.isposinf(ranges)] = self.NO_RETURN
-            codes[finite] = k
-            self._unit = u
-            return codes, u
-        return None, -1
+            exact = (self._decode_finite(k, u) == ranges) & (k >= 0) & (k < self.NO_RETURN)
+            fits = (exact | special_ok).all(axis=1)
+            kind[fits] = u
+            codes[fits] = np.where(finite[fits], k[fits], codes[fits])
+        for row, u in enumerate(kind.tolist()):
+            if u < 0:
+                self._where.append(-1 - len(self._floats))
+                self._floats.frombytes(ranges[row].tobytes())
+            else:
+                self._where.append(len(self._codes))
+                self._codes.frombytes(codes[row].tobytes())
+        self._kind.frombytes(kind.tobytes())
 
     def _decode_finite(self, k: np.ndarray, unit: int) -> np.ndarray:
         return (k * self.UNITS_M[unit]).astype(np.float32)
@@ -146,6 +149,8 @@ class ScanStore:
         return len(self._stamps)
 
     def scans(self) -> Iterable[Scan]:
+        if self._batch:
+            self._code_batch()
         for i, (stamp, max_range, shape) in enumerate(zip(self._stamps, self._max_range,
                                                           self._geometry, strict=True)):
             angles, laser = self._shapes[shape]

@@ -170,8 +170,9 @@ def test_kept_scans_come_back_as_they_went_in_in_two_bytes_a_reading_when_they_c
     store = ScanStore()
     for k, ranges in enumerate((mm, cm, raw)):
         store.add(Scan(float(k), ranges, angles, 80.0, Pose2D(), Pose2D(0.1, 0.0, 0.0)))
+    kept = list(store.scans())
     assert len(store._codes) == 2 * 181 and len(store._floats) == 181
-    for scan, ranges in zip(store.scans(), (mm, cm, raw), strict=True):
+    for scan, ranges in zip(kept, (mm, cm, raw), strict=True):
         assert np.array_equal(scan.ranges, ranges.astype(np.float32).astype(np.float64),
                               equal_nan=True)
         assert scan.angles is angles and scan.laser == Pose2D(0.1, 0.0, 0.0)
