@@ -131,12 +131,15 @@ def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkey
 
 def test_graph_distance_stops_at_the_nearest_nodes():
     """The window of an online optimization: the nodes nearest to the closure's two ends,
-    and no more than asked for."""
+    and no more than asked for; and a search for given nodes stops once it has them."""
     closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     d = closer._links.shortest_paths([0, 40], max_nodes=6)
     assert sorted(np.flatnonzero(np.isfinite(d))) == [0, 1, 2, 38, 39, 40]
+    d = closer._links.shortest_paths([40], targets=np.array([37]))  # stops once it has 37
+    assert d[37] == pytest.approx(1.5) and np.isinf(d[:30]).all()
+    assert closer.graph_distance(40, targets=np.array([0]))[0] == pytest.approx(20.0)
 
 
 def test_correlative_match_finds_a_large_offset():

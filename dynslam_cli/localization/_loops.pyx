@@ -78,12 +78,14 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
 
 def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
                    const Py_ssize_t[::1] to, const double[::1] length, Py_ssize_t n,
-                   const Py_ssize_t[::1] sources, double limit, Py_ssize_t max_nodes):
+                   const Py_ssize_t[::1] sources, double limit, Py_ssize_t max_nodes,
+                   const Py_ssize_t[::1] targets):
     """Dijkstra from the ``sources`` over an undirected graph of ``n`` nodes kept as
     adjacency lists (node v's first half-edge is head[v], each half-edge e leads to to[e]
     with length[e] and is followed by nxt[e]; -1 ends a list): the distance of every node to
-    the nearest source, ∞ beyond ``limit`` and beyond the ``max_nodes`` nearest nodes (the
-    search stops at either, so its cost is that of the graph within them)."""
+    the nearest source, ∞ beyond ``limit``, beyond the ``max_nodes`` nearest nodes, and
+    beyond the last of the ``targets`` if any are given (the search stops at whichever comes
+    first, so its cost is that of the graph within it; a target's distance is exact)."""
     cdef Py_ssize_t s
     if head.shape[0] < n or sources.shape[0] == 0:
         raise ValueError("no source, or adjacency lists that do not cover the graph's nodes")
@@ -95,6 +97,17 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
     cdef double[::1] d = dist
     cdef u8[::1] settled = settled_arr
     cdef Py_ssize_t cap = 64, size = 0, i, c, e, v, w, count = 0
+    cdef Py_ssize_t left = targets.shape[0]  # targets not settled yet
+    wanted_arr = np.zeros(n, dtype=np.uint8)
+    cdef u8[::1] wanted = wanted_arr
+    for s in range(targets.shape[0]):
+        if not 0 <= targets[s] < n:
+            raise ValueError("a target is not a node of the graph")
+        if wanted[targets[s]]:
+            left -= 1  # (listed twice)
+        wanted[targets[s]] = 1
+    if targets.shape[0] == 0:
+        left = -1  # no targets: never stop for them
     cdef double dv, dw
     cdef double *key = <double *>malloc((cap + sources.shape[0]) * sizeof(double))
     cdef Py_ssize_t *node = <Py_ssize_t *>malloc((cap + sources.shape[0]) * sizeof(Py_ssize_t))
@@ -109,7 +122,7 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
             d[sources[s]] = 0.0
             key[size], node[size] = 0.0, sources[s]
             size += 1
-        while size and count < max_nodes:
+        while size and count < max_nodes and left != 0:
             dv, v = key[0], node[0]  # pop the heap's least ...
             size -= 1
             i = 0
@@ -128,6 +141,8 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
                 continue  # a stale entry
             settled[v] = 1
             count += 1
+            if wanted[v]:
+                left -= 1
             e = head[v]
             while e >= 0:
                 w = to[e]
@@ -154,6 +169,6 @@ def shortest_paths(const Py_ssize_t[::1] head, const Py_ssize_t[::1] nxt,
     finally:
         free(key)
         free(node)
-    if size:  # stopped at max_nodes: those reached but not settled are beyond it
+    if size:  # stopped early: those reached but not settled are beyond where it stopped
         dist[settled_arr == 0] = INFINITY
     return dist

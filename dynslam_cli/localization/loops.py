@@ -302,12 +302,16 @@ class Links:
             self.count += 1
 
     def shortest_paths(self, sources: list[int], limit: float = math.inf,
-                       max_nodes: int | None = None) -> np.ndarray:
+                       max_nodes: int | None = None, targets: np.ndarray | None = None
+                       ) -> np.ndarray:
         """Distances from the nearest of ``sources`` to every node, ∞ beyond ``limit`` and
-        beyond the ``max_nodes`` nearest."""
+        beyond the ``max_nodes`` nearest; with ``targets``, exact for them (others may be ∞
+        where the search stopped, once it had them all)."""
         return _loops.shortest_paths(self.head, self.nxt, self.to, self.length, self.nodes,
                                      np.asarray(sources, dtype=np.intp), limit,
-                                     self.nodes if max_nodes is None else max_nodes)
+                                     self.nodes if max_nodes is None else max_nodes,
+                                     np.zeros(0, np.intp) if targets is None
+                                     else np.asarray(targets, dtype=np.intp))
 
 
 class LoopCloser:
@@ -366,16 +370,17 @@ class LoopCloser:
         self.points.append(points)
         self.path.append(path)
 
-    def graph_distance(self, k: int) -> np.ndarray:
+    def graph_distance(self, k: int, targets: np.ndarray | None = None) -> np.ndarray:
         """How far each node is from node k through the graph: the shortest path along the
         chain (metres driven) where loop closures are shortcuts of ~0 length. The drift
         between two nodes grows with it, not with the time between them: a place the robot
         closed a loop to a minute ago is near however long ago it was first seen. Nodes
         farther than where the search window stops growing get ∞ (so the search visits only
-        the graph near node k)."""
+        the graph near node k); with ``targets``, only their distances are sure (the search
+        stops once it has them)."""
         cfg = self.cfg
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
-        return self._links.shortest_paths([k], limit)
+        return self._links.shortest_paths([k], limit, targets=targets)
 
     def _candidate(self, k: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
@@ -391,7 +396,7 @@ class LoopCloser:
         near = np.flatnonzero(d <= cfg.max_search_radius_m)
         if not len(near):
             return None
-        g = self.graph_distance(k)[near]
+        g = self.graph_distance(k, targets=near)[near]
         inside = np.flatnonzero(d[near] <= self.radius(g))
         if not len(inside):
             return None
