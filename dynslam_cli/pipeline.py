@@ -106,20 +106,20 @@ class ScanStore:
             self._code_batch()
 
     def _code_batch(self) -> None:
-        """Code the waiting scans: each in the coarsest unit that gives back exactly its
-        float32 readings, or kept as float32."""
+        """Code the waiting scans: each in the first unit of ``UNITS_M`` that gives back
+        exactly its float32 readings, or kept as float32."""
         ranges = np.stack(self._batch)
         self._batch = []
         finite = np.isfinite(ranges)
-        special_ok = ~finite & (np.isposinf(ranges) | np.isnan(ranges))
+        special_ok = ~finite & ~np.isneginf(ranges)  # +inf and NaN have codes
         kind = np.full(len(ranges), -1, np.int8)
         codes = np.full(ranges.shape, self.INVALID, np.uint16)
         codes[np.isposinf(ranges)] = self.NO_RETURN
         wide = np.where(finite, ranges, 0.0).astype(np.float64)
-        for u in reversed(range(len(self.UNITS_M))):  # the finest fitting unit wins
+        for u in range(len(self.UNITS_M)):
             k = np.rint(wide / self.UNITS_M[u])
             exact = (self._decode_finite(k, u) == ranges) & (k >= 0) & (k < self.NO_RETURN)
-            fits = (exact | special_ok).all(axis=1)
+            fits = (exact | special_ok).all(axis=1) & (kind < 0)
             kind[fits] = u
             codes[fits] = np.where(finite[fits], k[fits], codes[fits])
         for row, u in enumerate(kind.tolist()):

@@ -41,11 +41,11 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
     and landmarks drawn at that scale. Drawn on a new image, or ``into`` (image, left, top)
     an existing one at that place (a frame: no second copy of a large picture)."""
     rows, cols = static.shape
-    c0, r0, c1, r1 = window or (0, 0, cols, rows)
+    c0, r0, c1, r1 = window = window or (0, 0, cols, rows)
     k = shrink
-    height, width = -(-(r1 - r0) // k), -(-(c1 - c0) // k)
+    height = picture_size(window, 1, k)[1]  # (in shrunk cells)
     if into is None:
-        into = (Image.new("RGB", (width * scale, height * scale)), 0, 0)
+        into = (Image.new("RGB", picture_size(window, scale, k)), 0, 0)
     image, left, top = into
     step = BAND_ROWS - BAND_ROWS % k
     for first in range(r0, r1, step):  # a band of rows at a time: the map is never held whole
@@ -76,6 +76,14 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
         u, v = pixel(lm.x, lm.y)
         draw.rectangle((u - half, v - half, u + half, v + half), outline=LANDMARK_RGB[lm.cls])
     return image
+
+
+def picture_size(window: tuple[int, int, int, int], scale: int, shrink: int
+                 ) -> tuple[int, int]:
+    """(width, height) in pixels of the picture of ``window`` at ``scale`` pixels per cell
+    or ``shrink`` cells per pixel (a partial block of cells makes a whole pixel)."""
+    c0, r0, c1, r1 = window
+    return -(-(c1 - c0) // shrink) * scale, -(-(r1 - r0) // shrink) * scale
 
 
 def _block(a: np.ndarray, k: int, fill: Any, reduce: Any) -> np.ndarray:
@@ -190,9 +198,7 @@ def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndar
     very large), framed; and its pixels per cell."""
     window = content_window(static, trajectory, landmarks, occupied_thresh)
     scale, shrink = picture_scale(window)
-    c0, r0, c1, r1 = window
-    size = (-(-(c1 - c0) // shrink) * scale, -(-(r1 - r0) // shrink) * scale)
-    framed = frame(static, window, size, scale / shrink)
+    framed = frame(static, window, picture_size(window, scale, shrink), scale / shrink)
     render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
            into=framed)
     return framed[0], scale / shrink

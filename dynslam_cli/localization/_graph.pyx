@@ -279,9 +279,7 @@ def conjugate_gradients(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indi
         for k in range(n):
             d[k] = z[k]
             rz += r[k] * z[k]
-        for step in range(max_steps):
-            if goal == 0.0:
-                break
+        for step in range(max_steps if goal > 0.0 else 0):  # (rhs 0: x = 0)
             for k in range(n):
                 q[k] = 0.0
             for k in range(n):  # q = A d, column by column

@@ -111,18 +111,18 @@ class PoseGraph:
             winfo = info * w[:, None, None]
             at_w = a.transpose(0, 2, 1) @ winfo  # Aᵀ Ω, then Bᵀ Ω
             bt_w = b.transpose(0, 2, 1) @ winfo
-            h_ij = (at_w @ b)[both]
-            vals = np.concatenate([(at_w @ a)[moves_i].ravel(), h_ij.ravel(),
-                                   h_ij.transpose(0, 2, 1).ravel(),
-                                   (bt_w @ b)[moves_j].ravel(), np.full(len(anchor), 1e12)])
+            h_ii, h_ij, h_jj = (at_w @ a)[moves_i], (at_w @ b)[both], (bt_w @ b)[moves_j]
+            vals = np.concatenate([h_ii.ravel(), h_ij.ravel(), h_ij.transpose(0, 2, 1).ravel(),
+                                   h_jj.ravel(), np.full(len(anchor), 1e12)])
             g = np.bincount(g_index, np.concatenate([(at_w @ err[:, :, None])[moves_i].ravel(),
                                                      (bt_w @ err[:, :, None])[moves_j].ravel()]),
                             minlength=3 * m)
             if not direct:
                 diagonal = np.zeros((m, 3, 3))  # the 3×3 blocks of the preconditioner
-                np.add.at(diagonal, li[moves_i], (at_w @ a)[moves_i])
-                np.add.at(diagonal, lj[moves_j], (bt_w @ b)[moves_j])
-                diagonal[0] += np.eye(3) * (1e12 if len(anchor) else 0.0)
+                np.add.at(diagonal, li[moves_i], h_ii)
+                np.add.at(diagonal, lj[moves_j], h_jj)
+                if len(anchor):
+                    diagonal[0] += np.eye(3) * 1e12
                 step = -_graph.conjugate_gradients(indptr, indices, vals[by_column],
                                                    np.linalg.inv(diagonal), g, CG_TOLERANCE,
                                                    30 * m).reshape(-1, 3)

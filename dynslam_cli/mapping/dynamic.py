@@ -8,6 +8,7 @@ or *Occupied* (a beam ended there). The inverse sensor models map that pair to a
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -78,6 +79,7 @@ class InverseModel:
             out[prev, 1 if obs == OCCUPIED else 0] = self.high if value == HIGH else self.low
         return np.asfortranarray(steps(out))
 
+    @functools.cached_property
     def clamp_steps(self) -> tuple[int, int]:
         """The clamp in the grid's steps."""
         lo, hi = steps((self.clamp_min, self.clamp_max))
@@ -193,6 +195,6 @@ def _apply_inverse_model(layer: np.ndarray, obs: Observation, free_prev: np.ndar
     """Add the table's log-odds (indexed [S^{t-1} state, o^t]) to the observed cells, clamped
     to the model's range; in the layer's steps, so the sums are exact."""
     flat = layer.reshape(-1)
-    lo, hi = model.clamp_steps()
+    lo, hi = model.clamp_steps
     _grid.add_clamped(flat, obs.free, free_prev, table[:, 0], lo, hi)
     _grid.add_clamped(flat, obs.hit, hit_prev, table[:, 1], lo, hi)
