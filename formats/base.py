@@ -13,7 +13,7 @@ import sys
 import zlib
 from collections import Counter, deque
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, ClassVar, Protocol
@@ -21,7 +21,7 @@ from typing import BinaryIO, ClassVar, Protocol
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from dynslam_cli.geometry import interpolate
+from dynslam_cli.geometry import interpolate, wrap_angle
 from dynslam_cli.types import Pose2D, Scan
 
 GZIP_MAGIC = b"\x1f\x8b"
@@ -175,6 +175,9 @@ def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     except (EOFError, gzip.BadGzipFile, zlib.error) as e:
         raise InputError(source.name, f"compressed data is damaged or truncated ({e})",
                          lineno + 1) from None
+    finally:  # the source owns the file (and closes it): let go of it, leave it open
+        with suppress(ValueError):  # (already closed by the source)
+            stream.detach()
 
 
 _OURS = (str(Path(__file__).resolve().parent), str(Path(__file__).resolve().parent.parent /
@@ -257,6 +260,49 @@ def scan_problem(scan: Scan) -> str | None:
     return None
 
 
+def beam_geometry(angles: np.ndarray) -> tuple[float, float]:
+    """(start, step) of evenly spaced beam angles, each at float32 precision: the
+    ``angle_min`` and ``angle_increment`` of a ``sensor_msgs/LaserScan``."""
+    n = len(angles)
+    step = (float(angles[-1]) - float(angles[0])) / (n - 1) if n > 1 else 0.0
+    return float(np.float32(angles[0])), float(np.float32(step))
+
+
+def _single_heading(pose: Pose2D) -> Pose2D:
+    theta = pose.theta if -math.pi <= pose.theta <= math.pi else wrap_angle(pose.theta)
+    heading = float(np.float32(theta))  # (of an unwrapped heading, float32 would be coarse)
+    return pose if heading == pose.theta else Pose2D(pose.x, pose.y, heading)
+
+
+class SinglePrecision:
+    """Scans as a ``sensor_msgs/LaserScan`` holds them: float32 ranges and max range, beam
+    angles ``start + i·step`` with float32 start and step (:func:`beam_geometry`); and the
+    headings of the odometry and the mount at float32 (2.4e-7 rad at most), as a heading
+    read back from a quaternion differs from the one written in float64's last bits, and a
+    run follows such bits. Text logs (ranges in mm or cm, headings in 1e-6 rad) and bags
+    (float32 ranges) lose nothing real by it, and a scan written to a recording
+    (``--record``) reads back bit for bit: a run on the recording is the same run. Equal
+    geometries share one read-only angle array."""
+
+    def __init__(self) -> None:
+        self._key: tuple[int, float, float] | None = None
+        self._angles = np.zeros(0)
+
+    def __call__(self, scan: Scan) -> Scan:
+        n = len(scan.angles)
+        key = (n, *beam_geometry(scan.angles))
+        if key != self._key:
+            self._key = key
+            self._angles = key[1] + key[2] * np.arange(n, dtype=np.float64)
+            self._angles.flags.writeable = False
+        with np.errstate(over="ignore"):  # beyond float32: +inf, no return (as it was)
+            ranges = scan.ranges.astype(np.float32).astype(np.float64)
+        return dataclasses.replace(
+            scan, ranges=ranges,
+            angles=self._angles, max_range=float(np.float32(scan.max_range)),
+            odom=_single_heading(scan.odom), laser=_single_heading(scan.laser))
+
+
 class ReaderFilter:
     """A reader seen through a filter of its scans: same format name, stats and extras."""
 
@@ -285,6 +331,7 @@ class ScanGuard(ReaderFilter):
     def scans(self) -> Iterator[Scan]:
         passed = skipped = 0
         last = -math.inf
+        single = SinglePrecision()
         for scan in self.reader.scans():
             problem = scan_problem(scan)
             if problem is not None:
@@ -302,7 +349,7 @@ class ScanGuard(ReaderFilter):
             negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
             if negative.any():
                 scan = dataclasses.replace(scan, ranges=np.where(negative, np.nan, scan.ranges))
-            yield scan
+            yield single(scan)
         if skipped and not passed:
             raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
                              + "; ".join(sorted(self.stats.skipped)) + ")")

@@ -58,8 +58,10 @@ def sniff(head: bytes) -> bool:
 
 
 def stamp_of(msg: Any) -> float:
+    """A header's stamp in seconds: the float nearest to sec + nanosec/10⁹ (an integer
+    division is rounded once, so a stamp written as sec, nanosec reads back as it was)."""
     s = msg.header.stamp
-    return float(s.sec) + 1e-9 * float(s.nanosec)
+    return (int(s.sec) * 10**9 + int(s.nanosec)) / 10**9
 
 
 def yaw_of(q: Any) -> float:
