@@ -185,6 +185,12 @@ class DynamicSlam:
         self._count = 0
 
     @property
+    def pose(self) -> Pose2D:
+        """The last scan's pose as estimated at its time (map frame)."""
+        x, y, theta = self._trajectory[-3:]
+        return Pose2D(x, y, theta)
+
+    @property
     def grids(self) -> GridStack:
         """The grids as mapped so far (with the pose estimates of their time)."""
         return self.mapper.grids
@@ -272,7 +278,7 @@ class DynamicSlam:
         say = on_phase or (lambda what, done, total: None)
         say("optimizing the pose graph", 0, 0)
         self._loops.finish()
-        trajectory = np.column_stack((trajectory[:, 0], self.optimized_poses()))
+        trajectory = np.column_stack((trajectory[:, 0], self.estimates()))
         mapper = DynamicMapper(self.config)
         mapper.grids.reserve_like(self.mapper.grids)
         self.mapper = mapper  # (the online maps are let go before the new ones fill)
@@ -284,11 +290,18 @@ class DynamicSlam:
             mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)
         return self._result(mapper, trajectory)
 
-    def optimized_poses(self) -> np.ndarray:
-        """Every scan's pose (N×3) from its node's optimized pose and its EKF offset."""
+    def estimates(self, scans: np.ndarray | None = None) -> np.ndarray:
+        """The current pose estimates (N×3, map frame) of the scans by index (default: every
+        scan): with the pose graph, each from its node's pose now and its EKF offset from
+        the node (so a loop closure moves the scans before it too), else as tracked."""
+        if self._loops is None:
+            poses = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)[:, 1:]
+            return poses if scans is None else poses[scans]
         node = np.asarray(self._nodes, dtype=np.int64)
         off = np.asarray(self._node_offsets, dtype=np.float64).reshape(-1, 3)
-        base = self._loops.graph.poses[node] if self._loops is not None else np.zeros((0, 3))
+        if scans is not None:
+            node, off = node[scans], off[scans]
+        base = self._loops.graph.poses[node]
         c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
         return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
                                 base[:, 1] + s * off[:, 0] + c * off[:, 1],

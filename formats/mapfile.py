@@ -41,11 +41,16 @@ def from_pixels(pixels: np.ndarray) -> np.ndarray:
     return ((255.0 - pixels.astype(np.float64)) / 255.0)[::-1]
 
 
+def class_masks(prob: np.ndarray, free_thresh: float, occupied_thresh: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of Free and Occupied cells (the rest is Unknown), rows as in ``prob``."""
+    return prob < free_thresh, prob > occupied_thresh
+
+
 def classes(prob: np.ndarray, free_thresh: float, occupied_thresh: float
             ) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of Free and Occupied cells (the rest is Unknown), image rows (row 0 = top)."""
-    flipped = prob[::-1]
-    return flipped < free_thresh, flipped > occupied_thresh
+    """:func:`class_masks` in image rows (row 0 = top)."""
+    return class_masks(prob[::-1], free_thresh, occupied_thresh)
 
 
 def trinary_pixels(free: np.ndarray, occupied: np.ndarray) -> np.ndarray:

@@ -307,6 +307,30 @@ class GridStack:
                             rows_of=lambda a, b: probability(self.window(name, r0 + a, r0 + b,
                                                                          c0, c1)))
 
+    def mapped(self, name: str, convert: Callable[[np.ndarray], np.ndarray]
+               ) -> tuple[np.ndarray, float, float]:
+        """(values, origin x, origin y): the layer over the observed area (the crop of
+        :meth:`snapshot`, row 0 at the lowest y), its stored values (int16 steps) turned into
+        values by ``convert`` (elementwise, whole arrays; a cell no tile holds is
+        ``convert`` of 0); made at once, in a few whole-array steps (a recording sends the
+        maps while the run goes on)."""
+        r0, r1, c0, c1 = self.bounds()
+        res = self.resolution
+        wr0, wc0 = self.origin_row + r0, self.origin_col + c0  # the crop in world cells
+        wr1, wc1 = self.origin_row + r1, self.origin_col + c1
+        n = self.tiles
+        tr0, tc0 = wr0 // TILE, wc0 // TILE  # the tiles the crop touches
+        rows, cols = (wr1 - 1) // TILE - tr0 + 1, (wc1 - 1) // TILE - tc0 + 1
+        fill = convert(np.zeros(1, np.int16))
+        block = np.full((rows * TILE, cols * TILE), fill[0], fill.dtype)
+        layer = self.layers.get(name)
+        if n and layer is not None:
+            tiles = block.reshape(rows, TILE, cols, TILE).transpose(0, 2, 1, 3)  # (a view)
+            tiles[self.tile_rows[:n] - tr0, self.tile_cols[:n] - tc0] = \
+                convert(layer[:n * TILE * TILE]).reshape(n, TILE, TILE)
+        top, left = wr0 - tr0 * TILE, wc0 - tc0 * TILE
+        return block[top:top + r1 - r0, left:left + c1 - c0], wc0 * res, wr0 * res
+
     def bounds(self) -> tuple[int, int, int, int]:
         """(row0, row1, col0, col1) half-open extent bounds of every observed cell (+1 cell).
         Every stored tile holds a seen cell, so only the outermost tiles are looked into."""
