@@ -101,6 +101,14 @@ run_options = _options(  # what to compute and which part of the log: process, b
     click.option("--snapshots", type=click.FloatRange(min=0, min_open=True), metavar="SECONDS",
                  help="Also write the S ∪ D picture every SECONDS of log time into "
                       "snapshots/ and snapshots/evolution.gif."),
+    click.option("--record", metavar="NAME.mcap",
+                 help="Also write a recording of the run for Foxglove and RViz (MCAP, ROS 2 "
+                      "messages: /scan, /tf, /map, /dynamic_map, /path, /landmarks ...) as "
+                      "NAME.mcap in the output folder."),
+    click.option("--record-period", type=click.FloatRange(min=0, min_open=True),
+                 metavar="SECONDS",
+                 help="In the recording, send the maps, paths and landmarks at most every "
+                      "SECONDS of log time [default: 5]."),
     click.option("--start", "start_s", type=click.FloatRange(min=0), metavar="SECONDS",
                  help="Leave out the scans of the first SECONDS (log time after the first "
                       "scan)."),
@@ -112,9 +120,14 @@ run_options = _options(  # what to compute and which part of the log: process, b
 
 
 def _overrides(resolution: float | None, flaser_fov: float | None, no_dynamic: bool,
-               localization: str | None) -> dict[str, dict[str, Any]]:
+               localization: str | None, record: str | None = None,
+               record_period: float | None = None) -> dict[str, dict[str, Any]]:
     """Configuration overrides from the command-line options."""
     overrides: dict[str, dict[str, Any]] = {}
+    recording = {k: v for k, v in (("file", record), ("period_s", record_period))
+                 if v is not None}
+    if recording:
+        overrides["record"] = recording
     if resolution is not None:
         overrides["map"] = {"resolution_m": resolution}
     if flaser_fov is not None:
@@ -168,8 +181,9 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
             topic: str | None, odom_topic: str | None, flaser_fov: float | None,
             resolution: float | None, config_file: Path | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
-            start_s: float | None, end_s: float | None, max_scans: int | None,
-            no_read_ahead: bool, quiet: bool) -> None:
+            record: str | None, record_period: float | None, start_s: float | None,
+            end_s: float | None, max_scans: int | None, no_read_ahead: bool,
+            quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
     LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped), a Player writelog, a
@@ -185,6 +199,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       landmarks.csv       id,x,y,kind,class,observations,cov_xx,cov_xy,cov_yy
       trajectory.tum      one robot pose per scan (TUM, for evo)
       summary.json        counts, skips, timing, effective configuration
+      NAME.mcap           with --record: the run to play back in Foxglove or RViz
     The output folder's path is printed on stdout.
 
     \b
@@ -195,11 +210,13 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       dynslam process robot.log --laser rear --config tuned.toml --force
       dynslam process lasers.bag --topic /left_scan
       dynslam process long.bag --start 600 --end 900    # ten to fifteen minutes in
+      dynslam process mit-csail.clf --record run.mcap   # then open it in Foxglove
     """
     from dynslam_cli.job import default_output
 
     target = output if output is not None else default_output(log)
-    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization)
+    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
+                           record_period)
 
     def work() -> None:
         from dynslam_cli.config import load_config
@@ -294,7 +311,8 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
           scheduler: str | None, force: bool, format_name: str | None, laser: str,
           topic: str | None, odom_topic: str | None, flaser_fov: float | None,
           resolution: float | None, config_file: Path | None, localization: str | None,
-          no_dynamic: bool, snapshots: float | None, start_s: float | None,
+          no_dynamic: bool, snapshots: float | None, record: str | None,
+          record_period: float | None, start_s: float | None,
           end_s: float | None, max_scans: int | None, quiet: bool) -> None:
     """Process many logs: LOGS are files, folders (searched for logs) or globs.
 
@@ -313,7 +331,8 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
     """
     if not logs and manifest is None:
         raise click.UsageError("give logs or --manifest")
-    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization)
+    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
+                           record_period)
     reader = _reader(laser, topic, odom_topic, start_s, end_s, max_scans)
 
     def work() -> None:

@@ -104,6 +104,19 @@ class DynamicConfig:
 
 
 @dataclass(frozen=True)
+class RecordConfig:
+    """A recording of the run for Foxglove and RViz (``--record``; see
+    dynslam_formats.recording): an MCAP file in the output folder."""
+
+    file: str | None = None
+    """File name of the recording in the output folder, ending in .mcap (``--record``);
+    unset: no recording."""
+    period_s: float = 5.0
+    """The maps, paths and landmarks are sent at most once every this many seconds of log
+    time, when they changed, and once at the end (``--record-period``)."""
+
+
+@dataclass(frozen=True)
 class Config:
     """All parameters of one run."""
 
@@ -114,6 +127,7 @@ class Config:
     ekf: EkfConfig = field(default_factory=EkfConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
 
     def validate(self) -> Config:
         """Check value ranges; returns self so calls chain."""
@@ -158,6 +172,14 @@ class Config:
              "loop.node_distance_m and node_angle_deg must be > 0"),
             (lp.pending_closures >= 1, "loop.pending_closures must be >= 1"),
             (lp.online_nodes >= 2, "loop.online_nodes must be >= 2"),
+        ]
+        r = self.record
+        checks += [
+            (r.period_s > 0, "record.period_s must be > 0"),
+            (r.file is None or (r.file.endswith(".mcap") and len(r.file) > len(".mcap")
+                                and Path(r.file).name == r.file),
+             f"record.file must be a file name ending in .mcap (it is written in the output "
+             f"folder), not {r.file!r}"),
         ]
         checks += [(_storable(values), f"{name}: {_STORABLE}") for name, values in (
             ("map", (m.p_hit, m.p_miss, m.p_clamp_min, m.p_clamp_max)),

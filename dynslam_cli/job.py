@@ -48,12 +48,14 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     from dynslam_formats import open_log
     from dynslam_formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from dynslam_formats.picture import SnapshotWriter
+    from dynslam_formats.recording import Recording
 
     start = time.perf_counter()
     source, entry, reader = open_log(log, options, format_name)
     with atomic_output_dir(target, force, log) as tmp:
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
                      if snapshot_every else None)
+        recording = Recording(tmp / config.record.file, config) if config.record.file else None
         ticks = array("d")
         front = open_front_end(reader, source, config, read_ahead)
         try:
@@ -63,14 +65,20 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                     on_progress(*front.progress(), i + 1)
                 if snapshots is not None:
                     snapshots.maybe_take(scan.stamp, slam)
+                if recording is not None:
+                    recording.add(scan, slam)
 
             result = run(front.scans(), config, on_scan, front,
-                         online_dynamic=snapshots is not None, on_phase=on_phase)
+                         online_dynamic=snapshots is not None or recording is not None,
+                         on_phase=on_phase)
+            if snapshots is not None:
+                snapshots.finish(result)
+            recorded = recording.finish(result) if recording is not None else None
         finally:
             front.close()
             source.close()
-        if snapshots is not None:
-            snapshots.finish(result)
+            if recording is not None:
+                recording.close()
         stamps = result.trajectory[:, 0]
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
@@ -89,7 +97,9 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                     **result.grid_memory},
             "localization": result.localization,
             "config": config.to_dict(),
-            "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else []),
+            "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else [])
+            + ([recorded["file"]] if recorded else []),
+            **({"recording": recorded} if recorded else {}),
             "wall_time_s": round(time.perf_counter() - start, 3),
             "scan_time_ms": _scan_times(ticks),
             "peak_rss_mb": _peak_rss_mb(children=False),

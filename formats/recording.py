@@ -1,0 +1,389 @@
+"""A recording of the run for playback (Foxglove, RViz through ``ros2 bag play``): an MCAP
+file in the ROS 2 profile, CDR-encoded standard messages (rosbags' serializer, the ``mcap``
+package's writer; no ROS install). Every stamp is log time.
+
+====================  ===================================  =================================
+topic                 type                                 sent
+====================  ===================================  =================================
+``/tf_static``        tf2_msgs/TFMessage                   base_link → laser, at the first
+                                                           scan
+``/tf``               tf2_msgs/TFMessage                   every scan: map → odom (the
+                                                           correction), odom → base_link
+                                                           (the log's odometry), REP 105;
+                                                           base_link → laser too when the
+                                                           mount changed
+``/scan``             sensor_msgs/LaserScan                every scan, as read (+inf: no
+                                                           return, REP 117)
+``/map``              nav_msgs/OccupancyGrid               S, every ``period_s`` of log time
+``/dynamic_map``      nav_msgs/OccupancyGrid               D, the same
+``/path``             nav_msgs/Path                        the estimate so far, the same
+``/odometry_path``    nav_msgs/Path                        the log's odometry, the same
+``/landmarks``        visualization_msgs/MarkerArray       corners, static green, dynamic
+                                                           orange, the same
+====================  ===================================  =================================
+
+Grids and landmarks are sent only when they changed, and all of them once more at the end,
+after the pose graph's final optimization: that last ``/map`` is ``static.pgm`` cell for cell
+(OccupancyGrid −1 unknown, 0 free, 100 occupied: the trinary classes), that last ``/path``
+is ``trajectory.tum``. While the run goes on, the paths hold a pose every ``PATH_STEP_M`` or
+``PATH_STEP_RAD`` of the robot's motion (a path of every scan, sent every period, would
+grow with the square of the log's length); the map frame is the odometry frame of the
+first scan, so ``/odometry_path`` (frame ``map``) shows the log's odometry where it drifts
+from the estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from dynslam_cli import __version__
+from dynslam_cli.config import Config
+from dynslam_cli.geometry import compose, inverse
+from dynslam_cli.mapping.grid import OccupancyMap, probability
+from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
+from dynslam_cli.types import Pose2D, Scan
+from dynslam_formats.base import beam_geometry
+from dynslam_formats.mapfile import class_masks
+from dynslam_formats.picture import LANDMARK_RGB
+
+MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
+UNKNOWN, FREE, OCCUPIED = -1, 0, 100  # nav_msgs/OccupancyGrid cell values
+PATH_STEP_M, PATH_STEP_RAD = 0.1, math.radians(5.0)
+LANDMARK_DIAMETER_M = 0.2
+
+TF, SCAN, GRID, PATH, MARKERS = ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/LaserScan",
+                                 "nav_msgs/msg/OccupancyGrid", "nav_msgs/msg/Path",
+                                 "visualization_msgs/msg/MarkerArray")
+TOPICS: tuple[tuple[str, str, bool], ...] = (  # (topic, type, latched: transient local)
+    ("/tf_static", TF, True), ("/tf", TF, False), ("/scan", SCAN, False),
+    ("/map", GRID, True), ("/dynamic_map", GRID, True), ("/path", PATH, False),
+    ("/odometry_path", PATH, False), ("/landmarks", MARKERS, False))
+
+
+def occupancy_values(prob: np.ndarray, free_thresh: float, occupied_thresh: float
+                     ) -> np.ndarray:
+    """OccupancyGrid values (int8: −1, 0, 100) of probabilities, classed as the PGM is."""
+    free, occupied = class_masks(prob, free_thresh, occupied_thresh)
+    values = np.full(prob.shape, UNKNOWN, np.int8)
+    values[free] = FREE
+    values[occupied] = OCCUPIED
+    return values
+
+
+class StoredClasses:
+    """:func:`occupancy_values` of a grid layer's stored values (int16 steps), by two
+    comparisons: the steps where the classes change are found once, over every value a cell
+    can hold, with the probabilities the map writers use (so the classes are theirs)."""
+
+    def __init__(self, free_thresh: float, occupied_thresh: float) -> None:
+        stored = np.arange(-(1 << 15), 1 << 15, dtype=np.int32).astype(np.int16)
+        values = occupancy_values(probability(stored), free_thresh, occupied_thresh)
+        self.free_max = int(stored[values == FREE].max())  # (probability rises with steps)
+        self.occupied_min = int(stored[values == OCCUPIED].min())
+
+    def __call__(self, stored: np.ndarray) -> np.ndarray:
+        occupied = stored >= self.occupied_min
+        values = occupied.view(np.int8) * np.int8(OCCUPIED)
+        values -= ((stored > self.free_max) & ~occupied).view(np.int8)  # unknown: −1
+        return values
+
+
+def qos_profiles(latched: bool) -> str:
+    """The ``offered_qos_profiles`` channel metadata rosbag2 writes: reliable, keep last;
+    transient local for latched topics (a late subscriber gets the last map)."""
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2.metadata import dump_qos_v8
+
+    forever = QosTime(2147483647, 4294967295)
+    return dump_qos_v8([Qos(
+        QosHistory.KEEP_LAST, 1 if latched else 10, QosReliability.RELIABLE,
+        QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE, forever, forever,
+        QosLiveliness.AUTOMATIC, forever, False)])
+
+
+def stamps(seconds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """builtin_interfaces/Time (sec, nanosec) of stamps in seconds, to the nearest
+    nanosecond: whole seconds apart, as ``seconds · 10⁹`` would round a log's epoch stamps
+    to 256 ns (and the ROS reader's ``stamp_of`` gives each stamp back as it was)."""
+    sec = np.floor(seconds)
+    nanosec = np.rint((seconds - sec) * 1e9).astype(np.int64)  # (seconds − sec is exact)
+    carry = nanosec == 10**9
+    return sec.astype(np.int64) + carry, np.where(carry, 0, nanosec)
+
+
+def _stamp(stamp: float) -> tuple[int, int]:
+    sec, nanosec = stamps(np.array([stamp]))
+    return int(sec[0]), int(nanosec[0])
+
+
+def path_cdr(stamp: float, frame: str, rows: np.ndarray) -> bytes:
+    """A nav_msgs/Path (every pose in ``frame``) from N×4 (stamp, x, y, θ) rows, CDR-encoded
+    as rosbags' serializer does it (a test holds them byte for byte equal) but by whole
+    arrays: made of message objects, a path of 2 000 poses takes 15 ms.
+
+    CDR (little endian, after a 4-byte encapsulation header) aligns each number to its
+    size: a pose's header (sec, nanosec, frame_id's length and bytes with its NUL) is 4-byte
+    aligned, its 7 float64 (position, orientation) 8-byte aligned."""
+    name = frame.encode() + b"\0"
+    length = len(name)
+
+    def header_bytes(t: float) -> bytes:
+        return np.array([*_stamp(t), length], np.uint32).tobytes() + name
+
+    def aligned(n: int, k: int) -> int:
+        return -(-n // k) * k
+
+    head = header_bytes(stamp)
+    head += bytes(aligned(len(head), 4) - len(head)) + np.uint32(len(rows)).tobytes()
+    first = len(head)  # the first pose's offset; every later one starts 8-byte aligned
+    doubles = [aligned(s + 12 + length, 8) - s for s in (first, aligned(first + 1, 8))]
+    sizes = [d + 56 for d in doubles]
+    n = len(rows)
+    out = np.zeros(first + (sizes[0] + (n - 1) * sizes[1] if n else 0), np.uint8)
+    out[:first] = np.frombuffer(head, np.uint8)
+    sec, nsec = stamps(rows[:, 0])
+    half = 0.5 * rows[:, 3]
+    pose = np.zeros((n, 7))
+    pose[:, 0], pose[:, 1], pose[:, 5], pose[:, 6] = rows[:, 1], rows[:, 2], np.sin(half), \
+        np.cos(half)
+    for part, (start, size, at) in enumerate(((first, sizes[0], doubles[0]),
+                                              (first + sizes[0], sizes[1], doubles[1]))):
+        take = slice(0, 1) if part == 0 else slice(1, n)
+        k = len(range(n)[take])
+        if k == 0:
+            continue
+        cells = out[start:start + k * size].reshape(k, size)
+        cells[:, 0:4] = sec[take].astype(np.int32).view(np.uint8).reshape(k, 4)
+        cells[:, 4:8] = nsec[take].astype(np.uint32).view(np.uint8).reshape(k, 4)
+        cells[:, 8:12] = np.frombuffer(np.uint32(length).tobytes(), np.uint8)
+        cells[:, 12:12 + length] = np.frombuffer(name, np.uint8)
+        cells[:, at:at + 56] = pose[take].view(np.uint8).reshape(k, 56)
+    return b"\0\x01\0\0" + out.tobytes()
+
+
+class Recording:
+    """Writes the recording of one run into ``path`` (inside the run's temporary output
+    folder, so it appears with the other outputs or not at all): :meth:`add` after each
+    scan, :meth:`finish` with the result, :meth:`close` in every case."""
+
+    def __init__(self, path: Path, config: Config) -> None:
+        from mcap.writer import CompressionType, Writer
+        from rosbags.typesys import Stores, get_typestore
+
+        self.path = path
+        self.config = config
+        self.period = config.record.period_s
+        self.store = get_typestore(Stores.ROS2_HUMBLE)
+        self.t = self.store.types
+        self.classes = StoredClasses(config.map.free_threshold, config.map.occupied_threshold)
+        self._file = open(path, "wb")  # noqa: SIM115 - closed by close()
+        self.writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library=f"dynslam {__version__}")
+        self.channels: dict[str, int] = {}
+        schemas: dict[str, int] = {}
+        for topic, msgtype, latched in TOPICS:
+            if msgtype not in schemas:
+                text = self.store.generate_msgdef(msgtype, ros_version=2)[0]
+                schemas[msgtype] = self.writer.register_schema(msgtype, "ros2msg", text.encode())
+            self.channels[topic] = self.writer.register_channel(
+                topic, "cdr", schemas[msgtype], {"offered_qos_profiles": qos_profiles(latched)})
+        self.counts = dict.fromkeys(self.channels, 0)
+        self._mount: Pose2D | None = None
+        self._next_s = -math.inf
+        self._last_sent: dict[str, Any] = {}
+        self._keys: list[int] = []  # the scans the paths hold while running
+        self._key_pose = Pose2D(math.inf, math.inf, 0.0)
+        self._odometry: list[tuple[float, float, float, float]] = []  # (stamp, x, y, θ)
+        self._has_odometry = False
+        self._scans = 0
+        self._stamp = 0.0
+        self._time_of, self._time_value = math.nan, (0, 0)
+
+    # -- per scan -------------------------------------------------------------------------
+    def add(self, scan: Scan, slam: DynamicSlam) -> None:
+        """Record one scan the run has processed: its TF, the scan, and every ``period_s``
+        of log time the grids, paths and landmarks."""
+        scan = self.config.laser.limit(scan)
+        stamp, pose, odom = scan.stamp, slam.pose, scan.odom
+        self._stamp = stamp
+        if self._mount is None:
+            self._mount = scan.laser
+            self._send("/tf_static", stamp, self._tf_message(
+                stamp, [(BASE_FRAME, LASER_FRAME, scan.laser)]))
+        links = [(MAP_FRAME, ODOM_FRAME, compose(pose, inverse(odom))),
+                 (ODOM_FRAME, BASE_FRAME, odom)]
+        if scan.laser != self._mount:  # (Carmen's, made of two poses, varies in the µm)
+            self._mount = scan.laser
+            links.append((BASE_FRAME, LASER_FRAME, scan.laser))
+        self._send("/tf", stamp, self._tf_message(stamp, links))
+        self._send("/scan", stamp, self._laser_scan(scan))
+        self._odometry.append((stamp, odom.x, odom.y, odom.theta))
+        self._has_odometry = self._has_odometry or scan.has_odometry
+        moved = compose(inverse(self._key_pose), pose) if math.isfinite(self._key_pose.x) \
+            else None
+        if moved is None or (math.hypot(moved.x, moved.y) >= PATH_STEP_M
+                             or abs(moved.theta) >= PATH_STEP_RAD):
+            self._keys.append(self._scans)
+            self._key_pose = pose
+        self._scans += 1
+        if stamp >= self._next_s:
+            self._next_s = stamp + self.period
+            self._send_state(stamp, slam)
+
+    def _send_state(self, stamp: float, slam: DynamicSlam) -> None:
+        """The grids (if changed), the paths so far, the landmarks (if changed)."""
+        grids = slam.grids
+        for topic, layer in (("/map", "static"), ("/dynamic_map", "dynamic")):
+            values, ox, oy = grids.mapped(layer, self.classes)
+            self._send_grid(topic, stamp, values, ox, oy, grids.resolution)
+        keys = np.asarray(self._keys + ([self._scans - 1] if self._keys[-1] != self._scans - 1
+                                        else []), dtype=np.int64)
+        stamps = np.asarray(self._odometry)[keys]
+        self._send_paths(stamp, np.column_stack((stamps[:, 0], slam.estimates(keys))), stamps)
+        self._send_landmarks(stamp, slam.landmarks(slam.mapper))
+
+    # -- at the end -----------------------------------------------------------------------
+    def finish(self, result: SlamResult) -> dict[str, Any]:
+        """The final state (the maps and landmarks as written, the optimized trajectory),
+        then the file's index; returns what the summary says of the recording."""
+        stamp = float(result.trajectory[-1, 0]) if len(result.trajectory) else self._stamp
+        m = self.config.map
+        for topic, grid in (("/map", result.static), ("/dynamic_map", result.dynamic)):
+            self._send_grid(topic, stamp, self._grid_values(grid, m), grid.origin_x,
+                            grid.origin_y, grid.resolution)
+        self._send_paths(stamp, result.trajectory, np.asarray(self._odometry).reshape(-1, 4))
+        self._send_landmarks(stamp, result.landmarks)
+        self.close()
+        return {"file": self.path.name, "bytes": self.path.stat().st_size,
+                "period_s": self.period, "messages": dict(sorted(self.counts.items()))}
+
+    @staticmethod
+    def _grid_values(grid: OccupancyMap, m: Any) -> np.ndarray:
+        return np.concatenate([occupancy_values(prob, m.free_threshold, m.occupied_threshold)
+                               for _, prob in grid.bands()]) if grid.shape[0] else \
+            np.zeros(grid.shape, np.int8)
+
+    def close(self) -> None:
+        """End the file (its summary and index); safe to call twice."""
+        if self._file.closed:
+            return
+        try:
+            self.writer.finish()
+        finally:
+            self._file.close()
+
+    # -- messages -------------------------------------------------------------------------
+    def _send(self, topic: str, stamp: float, msg: Any) -> None:
+        self._send_data(topic, stamp, self.store.serialize_cdr(msg, msg.__msgtype__))
+
+    def _time(self, stamp: float) -> tuple[int, int]:
+        """:func:`_stamp`, once per stamp (a scan's messages share it)."""
+        if stamp != self._time_of:
+            self._time_of, self._time_value = stamp, _stamp(stamp)
+        return self._time_value
+
+    def _send_data(self, topic: str, stamp: float, data: bytes) -> None:
+        sec, nanosec = self._time(stamp)
+        ns = max(0, sec * 10**9 + nanosec)
+        self.writer.add_message(self.channels[topic], log_time=ns, data=data, publish_time=ns,
+                                sequence=self.counts[topic])
+        self.counts[topic] += 1
+
+    def _header(self, stamp: float, frame: str) -> Any:
+        sec, nanosec = self._time(stamp)
+        return self.t["std_msgs/msg/Header"](
+            stamp=self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+            frame_id=frame)
+
+    def _pose(self, x: float, y: float, theta: float) -> Any:
+        t = self.t
+        return t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0),
+            orientation=self._quaternion(theta))
+
+    def _quaternion(self, theta: float) -> Any:
+        return self.t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(0.5 * theta),
+                                                       w=math.cos(0.5 * theta))
+
+    def _tf_message(self, stamp: float, links: list[tuple[str, str, Pose2D]]) -> Any:
+        t = self.t
+        return t[TF](transforms=[t["geometry_msgs/msg/TransformStamped"](
+            header=self._header(stamp, parent), child_frame_id=child,
+            transform=t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=p.x, y=p.y, z=0.0),
+                rotation=self._quaternion(p.theta)))
+            for parent, child, p in links])
+
+    def _laser_scan(self, scan: Scan) -> Any:
+        start, step = beam_geometry(scan.angles)
+        ranges = np.where(scan.ranges >= scan.max_range, np.inf, scan.ranges)
+        return self.t[SCAN](
+            header=self._header(scan.stamp, LASER_FRAME), angle_min=start,
+            angle_max=float(scan.angles[-1]), angle_increment=step,
+            time_increment=0.0, scan_time=0.0, range_min=self.config.laser.min_range_m,
+            range_max=float(scan.max_range), ranges=ranges.astype(np.float32),
+            intensities=np.zeros(0, np.float32))
+
+    def _send_grid(self, topic: str, stamp: float, values: np.ndarray, origin_x: float,
+                   origin_y: float, resolution: float) -> None:
+        key = (values.shape, origin_x, origin_y)
+        last = self._last_sent.get(topic)
+        if last is not None and last[0] == key and np.array_equal(last[1], values):
+            return
+        self._last_sent[topic] = (key, values)
+        rows, cols = values.shape
+        t = self.t
+        info = t["nav_msgs/msg/MapMetaData"](
+            map_load_time=self._header(stamp, "").stamp, resolution=float(resolution),
+            width=cols, height=rows, origin=self._pose(origin_x, origin_y, 0.0))
+        self._send(topic, stamp, t[GRID](header=self._header(stamp, MAP_FRAME), info=info,
+                                         data=values.reshape(-1)))
+
+    def _send_paths(self, stamp: float, estimate: np.ndarray, odometry: np.ndarray) -> None:
+        """``/path`` and ``/odometry_path`` from N×4 (stamp, x, y, θ) rows."""
+        paths = [("/path", estimate)] + ([("/odometry_path", odometry)]
+                                         if self._has_odometry else [])
+        for topic, rows in paths:
+            self._send_data(topic, stamp, path_cdr(stamp, MAP_FRAME, rows))
+
+    def _send_landmarks(self, stamp: float, landmarks: list[Landmark]) -> None:
+        """One sphere list per class (static, dynamic); sent when a landmark moved, came or
+        changed class."""
+        state = tuple((lm.id, round(lm.x, 3), round(lm.y, 3), lm.cls) for lm in landmarks)
+        if self._last_sent.get("/landmarks") == state:
+            return
+        self._last_sent["/landmarks"] = state
+        t = self.t
+        Marker = t["visualization_msgs/msg/Marker"]  # noqa: N806 - a message class
+        markers = []
+        for k, cls in enumerate(("static", "dynamic")):
+            points = [t["geometry_msgs/msg/Point"](x=lm.x, y=lm.y, z=0.0)
+                      for lm in landmarks if lm.cls == cls]
+            r, g, b = (c / 255.0 for c in LANDMARK_RGB[cls])
+            d = LANDMARK_DIAMETER_M
+            markers.append(Marker(
+                header=self._header(stamp, MAP_FRAME), ns=f"{cls} landmarks", id=k,
+                type=Marker.SPHERE_LIST, action=Marker.ADD if points else Marker.DELETE,
+                pose=self._pose(0.0, 0.0, 0.0),
+                scale=t["geometry_msgs/msg/Vector3"](x=d, y=d, z=d),
+                color=t["std_msgs/msg/ColorRGBA"](r=r, g=g, b=b, a=1.0),
+                lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+                frame_locked=False, points=points, colors=[], texture_resource="",
+                texture=t["sensor_msgs/msg/CompressedImage"](
+                    header=self._header(stamp, ""), format="", data=np.zeros(0, np.uint8)),
+                uv_coordinates=[], text="", mesh_resource="",
+                mesh_file=t["visualization_msgs/msg/MeshFile"](
+                    filename="", data=np.zeros(0, np.uint8)),
+                mesh_use_embedded_materials=False))
+        self._send("/landmarks", stamp, t[MARKERS](markers=markers))
