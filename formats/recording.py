@@ -9,7 +9,9 @@ topic                 type                                 sent
                                                            scan
 ``/tf``               tf2_msgs/TFMessage                   every scan: map → odom (the
                                                            correction), odom → base_link
-                                                           (the log's odometry), REP 105;
+                                                           (the log's odometry), REP 105
+                                                           (a log without odometry: map →
+                                                           base_link);
                                                            base_link → laser too when the
                                                            mount changed
 ``/scan``             sensor_msgs/LaserScan                every scan, as read (+inf: no
@@ -221,8 +223,9 @@ class Recording:
             self._mount = scan.laser
             self._send("/tf_static", stamp, self._tf_message(
                 stamp, [(BASE_FRAME, LASER_FRAME, scan.laser)]))
-        links = [(MAP_FRAME, ODOM_FRAME, compose(pose, inverse(odom))),
-                 (ODOM_FRAME, BASE_FRAME, odom)]
+        links = ([(MAP_FRAME, ODOM_FRAME, compose(pose, inverse(odom))),
+                  (ODOM_FRAME, BASE_FRAME, odom)] if scan.has_odometry
+                 else [(MAP_FRAME, BASE_FRAME, pose)])  # (no odom frame: none in the log)
         if scan.laser != self._mount:  # (Carmen's, made of two poses, varies in the µm)
             self._mount = scan.laser
             links.append((BASE_FRAME, LASER_FRAME, scan.laser))

@@ -272,3 +272,20 @@ def test_mit_csail_plays_back_into_the_same_run(cli, datasets, tmp_path):
     assert cli("process", first / "run.mcap", "-o", again, "-q").exit_code == 0
     for name in ("trajectory.tum", "static.pgm", "dynamic.pgm", "landmarks.csv"):
         assert (first / name).read_bytes() == (again / name).read_bytes(), name
+
+
+def test_a_log_without_odometry_plays_back_without_it(cli, datasets, tmp_path):
+    """A laser-only bag: the recording's TF goes map → base_link (an odom → base_link
+    would read back as odometry standing still, a different run)."""
+    bag = datasets / "rosbag1" / "people-walking-rear.bag"
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert cli("process", bag, "-o", first, "-q", "--record", "run.mcap").exit_code == 0
+    links = {(tf.header.frame_id, tf.child_frame_id) for topic, _, _, msg in
+             read_all(first / "run.mcap") if topic == "/tf" for tf in msg.transforms}
+    assert links == {("map", "base_link")}
+    r = cli("process", first / "run.mcap", "-o", again, "-q")
+    assert r.exit_code == 0 and "no odometry" in r.stderr
+    for name in ("trajectory.tum", "static.pgm", "dynamic.pgm"):
+        assert (first / name).read_bytes() == (again / name).read_bytes(), name
+    summary = json.loads((first / "summary.json").read_text())
+    assert summary["recording"]["messages"]["/odometry_path"] == 0
