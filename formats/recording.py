@@ -37,6 +37,7 @@ from the estimate.
 from __future__ import annotations
 
 import math
+from array import array
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
-from dynslam_cli.geometry import compose, inverse
+from dynslam_cli.geometry import compose, inverse, relative
 from dynslam_cli.mapping.grid import OccupancyMap, probability
 from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
 from dynslam_cli.types import Pose2D, Scan
@@ -159,11 +160,11 @@ def path_cdr(stamp: float, frame: str, rows: np.ndarray) -> bytes:
     pose = np.zeros((n, 7))
     pose[:, 0], pose[:, 1], pose[:, 5], pose[:, 6] = rows[:, 1], rows[:, 2], np.sin(half), \
         np.cos(half)
-    for part, (start, size, at) in enumerate(((first, sizes[0], doubles[0]),
-                                              (first + sizes[0], sizes[1], doubles[1]))):
-        take = slice(0, 1) if part == 0 else slice(1, n)
-        k = len(range(n)[take])
-        if k == 0:
+    parts = ((0, min(n, 1), first, sizes[0], doubles[0]),  # (poses lo:hi, byte offset,
+             (1, n, first + sizes[0], sizes[1], doubles[1]))  # pose size, doubles at)
+    for lo, hi, start, size, at in parts:
+        k, take = hi - lo, slice(lo, hi)
+        if k <= 0:
             continue
         cells = out[start:start + k * size].reshape(k, size)
         cells[:, 0:4] = sec[take].astype(np.int32).view(np.uint8).reshape(k, 4)
@@ -204,12 +205,10 @@ class Recording:
         self._mount: Pose2D | None = None
         self._next_s = -math.inf
         self._last_sent: dict[str, Any] = {}
-        self._keys: list[int] = []  # the scans the paths hold while running
-        self._key_pose = Pose2D(math.inf, math.inf, 0.0)
-        self._odometry: list[tuple[float, float, float, float]] = []  # (stamp, x, y, θ)
+        self._keys = array("q")  # the scans the paths hold while running
+        self._key_pose: Pose2D | None = None
+        self._odometry = array("d")  # (stamp, x, y, θ) of every scan
         self._has_odometry = False
-        self._scans = 0
-        self._stamp = 0.0
         self._time_of, self._time_value = math.nan, (0, 0)
 
     # -- per scan -------------------------------------------------------------------------
@@ -218,7 +217,6 @@ class Recording:
         of log time the grids, paths and landmarks."""
         scan = self.config.laser.limit(scan)
         stamp, pose, odom = scan.stamp, slam.pose, scan.odom
-        self._stamp = stamp
         if self._mount is None:
             self._mount = scan.laser
             self._send("/tf_static", stamp, self._tf_message(
@@ -231,15 +229,13 @@ class Recording:
             links.append((BASE_FRAME, LASER_FRAME, scan.laser))
         self._send("/tf", stamp, self._tf_message(stamp, links))
         self._send("/scan", stamp, self._laser_scan(scan))
-        self._odometry.append((stamp, odom.x, odom.y, odom.theta))
+        self._odometry.extend((stamp, odom.x, odom.y, odom.theta))
         self._has_odometry = self._has_odometry or scan.has_odometry
-        moved = compose(inverse(self._key_pose), pose) if math.isfinite(self._key_pose.x) \
-            else None
+        moved = None if self._key_pose is None else relative(self._key_pose, pose)
         if moved is None or (math.hypot(moved.x, moved.y) >= PATH_STEP_M
                              or abs(moved.theta) >= PATH_STEP_RAD):
-            self._keys.append(self._scans)
+            self._keys.append(len(self._odometry) // 4 - 1)
             self._key_pose = pose
-        self._scans += 1
         if stamp >= self._next_s:
             self._next_s = stamp + self.period
             self._send_state(stamp, slam)
@@ -250,26 +246,34 @@ class Recording:
         for topic, layer in (("/map", "static"), ("/dynamic_map", "dynamic")):
             values, ox, oy = grids.mapped(layer, self.classes)
             self._send_grid(topic, stamp, values, ox, oy, grids.resolution)
-        keys = np.asarray(self._keys + ([self._scans - 1] if self._keys[-1] != self._scans - 1
-                                        else []), dtype=np.int64)
-        stamps = np.asarray(self._odometry)[keys]
-        self._send_paths(stamp, np.column_stack((stamps[:, 0], slam.estimates(keys))), stamps)
+        odometry = self._odometry_rows()
+        keys = np.frombuffer(self._keys, np.int64)
+        if keys[-1] != len(odometry) - 1:  # (and the latest scan)
+            keys = np.append(keys, len(odometry) - 1)
+        self._send_paths(stamp, np.column_stack((odometry[keys, 0], slam.estimates(keys))),
+                         odometry[keys])
         self._send_landmarks(stamp, slam.landmarks(slam.mapper))
 
     # -- at the end -----------------------------------------------------------------------
     def finish(self, result: SlamResult) -> dict[str, Any]:
         """The final state (the maps and landmarks as written, the optimized trajectory),
         then the file's index; returns what the summary says of the recording."""
-        stamp = float(result.trajectory[-1, 0]) if len(result.trajectory) else self._stamp
+        odometry = self._odometry_rows()
+        stamp = float(result.trajectory[-1, 0]) if len(result.trajectory) else 0.0
         m = self.config.map
         for topic, grid in (("/map", result.static), ("/dynamic_map", result.dynamic)):
             self._send_grid(topic, stamp, self._grid_values(grid, m), grid.origin_x,
                             grid.origin_y, grid.resolution)
-        self._send_paths(stamp, result.trajectory, np.asarray(self._odometry).reshape(-1, 4))
+        self._send_paths(stamp, result.trajectory, odometry)
         self._send_landmarks(stamp, result.landmarks)
         self.close()
         return {"file": self.path.name, "bytes": self.path.stat().st_size,
                 "period_s": self.period, "messages": dict(sorted(self.counts.items()))}
+
+    def _odometry_rows(self) -> np.ndarray:
+        """Every scan's (stamp, x, y, θ) so far, N×4: a view, no copy of the growing log
+        (let go before the next scan: an array lending its buffer cannot grow)."""
+        return np.frombuffer(self._odometry, np.float64).reshape(-1, 4)
 
     @staticmethod
     def _grid_values(grid: OccupancyMap, m: Any) -> np.ndarray:
