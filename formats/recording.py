@@ -28,10 +28,11 @@ Grids and landmarks are sent only when they changed, and all of them once more a
 after the pose graph's final optimization: that last ``/map`` is ``static.pgm`` cell for cell
 (OccupancyGrid −1 unknown, 0 free, 100 occupied: the trinary classes), that last ``/path``
 is ``trajectory.tum``. While the run goes on, the paths hold a pose every ``PATH_STEP_M`` or
-``PATH_STEP_RAD`` of the robot's motion (a path of every scan, sent every period, would
-grow with the square of the log's length); the map frame is the odometry frame of the
-first scan, so ``/odometry_path`` (frame ``map``) shows the log's odometry where it drifts
-from the estimate.
+``PATH_STEP_RAD`` of the robot's motion, and never more than ``PATH_MAX_POSES``: when the
+path reaches that, every other pose goes and the steps double (a path of every scan, sent
+every period, would grow with the square of the log's length). The map frame is the
+odometry frame of the first scan, so ``/odometry_path`` (frame ``map``) shows the log's
+odometry where it drifts from the estimate.
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ from dynslam_formats.picture import LANDMARK_RGB
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100  # nav_msgs/OccupancyGrid cell values
 PATH_STEP_M, PATH_STEP_RAD = 0.1, math.radians(5.0)
+PATH_MAX_POSES = 1000  # in a running /path (the last one holds every scan)
 LANDMARK_DIAMETER_M = 0.2
 
 TF, SCAN, GRID, PATH, MARKERS = ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/LaserScan",
@@ -207,6 +209,7 @@ class Recording:
         self._last_sent: dict[str, Any] = {}
         self._keys = array("q")  # the scans the paths hold while running
         self._key_pose: Pose2D | None = None
+        self._step_m, self._step_rad = PATH_STEP_M, PATH_STEP_RAD
         self._odometry = array("d")  # (stamp, x, y, θ) of every scan
         self._has_odometry = False
         self._time_of, self._time_value = math.nan, (0, 0)
@@ -232,10 +235,13 @@ class Recording:
         self._odometry.extend((stamp, odom.x, odom.y, odom.theta))
         self._has_odometry = self._has_odometry or scan.has_odometry
         moved = None if self._key_pose is None else relative(self._key_pose, pose)
-        if moved is None or (math.hypot(moved.x, moved.y) >= PATH_STEP_M
-                             or abs(moved.theta) >= PATH_STEP_RAD):
+        if moved is None or (math.hypot(moved.x, moved.y) >= self._step_m
+                             or abs(moved.theta) >= self._step_rad):
             self._keys.append(len(self._odometry) // 4 - 1)
             self._key_pose = pose
+            if len(self._keys) > PATH_MAX_POSES:
+                self._keys = self._keys[::2]
+                self._step_m, self._step_rad = 2 * self._step_m, 2 * self._step_rad
         if stamp >= self._next_s:
             self._next_s = stamp + self.period
             self._send_state(stamp, slam)

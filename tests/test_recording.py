@@ -102,6 +102,27 @@ def test_the_last_map_and_path_are_the_written_outputs(recorded):
     assert np.abs(turn).max() < 1e-6
 
 
+def test_a_running_path_stays_bounded_and_spans_the_run(cli, tmp_path, monkeypatch):
+    """A running /path never holds more than PATH_MAX_POSES (+ the latest scan): the file
+    grows with the log, not with its square. It still starts at the first scan and ends at
+    the scan it was sent with; the last /path is every scan."""
+    from dynslam_formats import recording
+
+    monkeypatch.setattr(recording, "PATH_MAX_POSES", 12)
+    out = tmp_path / "out"
+    assert cli("process", SAMPLE, "-o", out, "-q", "--record", "run.mcap",
+               "--record-period", "1").exit_code == 0
+    paths = [(t, m) for topic, _, t, m in read_all(out / "run.mcap") if topic == "/path"]
+    first = read_tum(out / "trajectory.tum")[0, 0]
+    sizes = [len(m.poses) for _, m in paths[:-1]]
+    assert max(sizes) <= 12 + 1 and sizes.count(max(sizes)) > 1
+    for t, m in paths:
+        times = [p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in m.poses]
+        assert times == sorted(times) and times[-1] == t
+        assert times[0] == pytest.approx(first * 1e9, abs=1e3)
+    assert len(paths[-1][1].poses) == len(read_tum(out / "trajectory.tum"))
+
+
 def test_mcap_reads_it_as_a_ros2_file(recorded):
     from mcap.reader import make_reader
 
