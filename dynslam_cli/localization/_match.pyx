@@ -188,16 +188,16 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 
 def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
         double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
-        double wx, double wy, double wth, double sigma):
+        double wx, double wy, double wth, double sigma, double step_m, double step_rad):
     """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
-    at a wider gate, it goes on at the narrowest until converged there (the answer is then
-    the narrow gate's, outliers left out). Returns (x, y, θ, share, rms, ok, h): h is
+    (a step below step_m and step_rad) at a wider gate, it goes on at the narrowest until
+    converged there (the answer is then the narrow gate's, outliers left out). Returns (x, y, θ, share, rms, ok, h): h is
     the Huber-weighted Σ J Jᵀ of the pairs of the last iteration (3×3, the prior left out)."""
     cdef double out[11]
     cdef bint ok
     with nogil:
         ok = _icp(index, normals, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
-                  wth, sigma, out)
+                  wth, sigma, step_m, step_rad, out)
     h = np.zeros((3, 3))
     if not ok:
         return gx, gy, gth, 0.0, INFINITY, False, h
@@ -210,7 +210,7 @@ def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts
 cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
                double gx, double gy, double gth, int iterations, double gate_max,
                double gate_min, double wx, double wy, double wth, double sigma,
-               double out[11]) noexcept nogil:
+               double step_m, double step_rad, double out[11]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
     cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
     cdef double share = 0.0, rms = INFINITY, sq
@@ -273,7 +273,7 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
         y -= d[1]
         th -= d[2]
         rms = sqrt(sq / used)
-        if fabs(d[0]) + fabs(d[1]) < 1e-4 and fabs(d[2]) < 1e-5:
+        if fabs(d[0]) + fabs(d[1]) < step_m and fabs(d[2]) < step_rad:
             if gate <= gate_min:  # (always so once narrow)
                 break
             narrow = True

@@ -30,6 +30,9 @@ from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
+# ICP has converged when a step moves the pose less than this (x + y, m; θ, rad): a
+# millimetre, a tenth of a good match's own error (1-2 cm and 0.1-0.3° a scan on real logs).
+CONVERGED_STEP = (1e-3, 1e-4)
 # Motion prior for logs without odometry: stationary, with this standard deviation per scan
 # (x m, y m, θ rad): a still or slowly moving sensor is matched freely within it.
 NO_ODOMETRY_SIGMA = (0.3, 0.3, math.radians(15.0))
@@ -123,7 +126,7 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     x, y, th, share, rms, ok, h = _match.icp(
         ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
-        RESIDUAL_SIGMA_M)
+        RESIDUAL_SIGMA_M, *CONVERGED_STEP)
     if not ok:
         return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
     used = max(share * len(pts), 1.0)
