@@ -190,9 +190,10 @@ def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts
         double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
         double wx, double wy, double wth, double sigma, double step_m, double step_rad):
     """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
-    (a step below step_m and step_rad) at a wider gate, it goes on at the narrowest until
-    converged there (the answer is then the narrow gate's, outliers left out). Returns (x, y, θ, share, rms, ok, h): h is
-    the Huber-weighted Σ J Jᵀ of the pairs of the last iteration (3×3, the prior left out)."""
+    (a step of under step_m in |x| + |y| and step_rad in θ) at a wider gate, it goes on at
+    the narrowest until converged there (the answer is then the narrow gate's, outliers
+    left out). Returns (x, y, θ, share, rms, ok, h): h is the Huber-weighted Σ J Jᵀ of the
+    pairs of the last iteration (3×3, the prior left out)."""
     cdef double out[11]
     cdef bint ok
     with nogil:

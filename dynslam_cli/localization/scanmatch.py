@@ -30,7 +30,7 @@ from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
-# ICP has converged when a step moves the pose less than this (x + y, m; θ, rad): a
+# ICP has converged when a step moves the pose less than this (|x| + |y| m, |θ| rad): a
 # millimetre, a tenth of a good match's own error (1-2 cm and 0.1-0.3° a scan on real logs).
 CONVERGED_STEP = (1e-3, 1e-4)
 # Motion prior for logs without odometry: stationary, with this standard deviation per scan
