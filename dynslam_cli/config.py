@@ -172,6 +172,7 @@ class Config:
              "loop.node_distance_m and node_angle_deg must be > 0"),
             (lp.pending_closures >= 1, "loop.pending_closures must be >= 1"),
             (lp.online_nodes >= 2, "loop.online_nodes must be >= 2"),
+            (lp.online_flops > 0, "loop.online_flops must be > 0"),
         ]
         r = self.record
         checks += [

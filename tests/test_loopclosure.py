@@ -104,6 +104,42 @@ def test_an_optimization_over_part_of_the_graph_moves_only_that_part():
     assert abs(e1[0, 1]) < 0.5 * abs(e0[0, 1])
 
 
+def test_an_optimization_bounded_in_flops_moves_only_the_nearest_nodes(monkeypatch):
+    """A place passed again and again, each pass tied to the ones before: the factor of
+    the same number of nodes fills in more and more. An online optimization given its
+    nodes nearest first and a bound on the factorization's multiplications moves only the
+    nearest of them, and still takes up the closure's error; unbounded, it moves them all."""
+    from dynslam_cli.localization import _graph, graph
+
+    def passes() -> PoseGraph:
+        g = PoseGraph()
+        info = np.diag([100.0, 100.0, 400.0])
+        g.add_node(np.zeros(3))
+        for k in range(1, 120):  # 6 passes round a square of 20 nodes
+            g.add_node(g.poses[k - 1] + np.array([0.2, 0.0, 0.0]))
+            g.add_edge(k - 1, k, np.array([0.2, 0.0, 0.0]), info)
+            if k >= 20:  # the same place on the pass before
+                g.add_edge(k - 20, k, np.array([0.2 * 20, 0.0, 0.0]), info, robust=True)
+        g.poses[110:, 1] += 0.3  # the end of the last pass has drifted
+        return g
+
+    monkeypatch.setattr(graph, "MIN_MOVING_NODES", 5)
+    nearest_first = np.arange(119, -1, -1)
+    g = passes()
+    i, j, _, _, _ = g.edges.arrays()
+    _, all_flops = _graph.minimum_degree(120, i, j)
+    before = g.poses.copy()
+    e0 = edge_errors(g.poses, np.array([99]), np.array([119]), np.array([[4.0, 0, 0]]))[0]
+    g.optimize(1, nodes=nearest_first, max_flops=all_flops / 8)
+    e1 = edge_errors(g.poses, np.array([99]), np.array([119]), np.array([[4.0, 0, 0]]))[0]
+    held = np.flatnonzero(np.all(g.poses == before, axis=1))
+    assert len(held) > 10 and held.max() < 100  # the far ones held, the nearest moved
+    assert abs(e1[0, 1]) < 0.5 * abs(e0[0, 1])
+    unbounded = passes()
+    unbounded.optimize(1, nodes=nearest_first)
+    assert not np.any(np.all(unbounded.poses[1:] == before[1:], axis=1))
+
+
 def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkeypatch):
     """Above DIRECT_MAX_NODES the steps come from conjugate gradients: the same optimum."""
     from dynslam_cli.localization import graph

@@ -67,11 +67,14 @@ def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1]
     """An ordering of the n nodes of the graph with edges (ei[k], ej[k]) for a Cholesky
     factorization that fills in little: repeatedly the node of least degree (ties: the lower
     index) is eliminated, its neighbours becoming neighbours of each other (exact minimum
-    degree on the elimination graph, George & Liu 1989)."""
+    degree on the elimination graph, George & Liu 1989). Returns the order and the
+    multiplications a block LDLᵀ factorization in it takes (3×3 blocks: 27 d(d + 1)/2 for
+    a node eliminated with d neighbours)."""
     cdef Py_ssize_t m = ei.shape[0], k, a, b, v, u, w, p, q, step, hsize = 0, hcap
     cdef Py_ssize_t dv, du
     cdef long long key
     cdef int stamp = 0
+    cdef double flops = 0.0
     deg_arr = np.zeros(n, dtype=np.intp)
     cap_arr = np.zeros(n, dtype=np.intp)
     mark_arr = np.zeros(n, dtype=np.intc)
@@ -120,6 +123,7 @@ def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1]
             done[v] = 1
             order[step] = v
             dv = deg[v]
+            flops += 13.5 * dv * (dv + 1)
             for p in range(dv):  # each neighbour u: adj(u) ∪ adj(v) less u and v
                 u = adj[v][p]
                 stamp += 1
@@ -153,7 +157,7 @@ def minimum_degree(Py_ssize_t n, const Py_ssize_t[::1] ei, const Py_ssize_t[::1]
             free(adj[a])
         free(adj)
         free(heap)
-    return order_arr
+    return order_arr, flops
 
 
 def solve_spd(const Py_ssize_t[::1] indptr, const Py_ssize_t[::1] indices,

@@ -12,6 +12,8 @@ edges carry a Cauchy kernel, so a wrong one pulls only softly.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from dynslam_cli.geometry import wrap_angles
@@ -25,6 +27,7 @@ CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 # 30 MB, a tenth of a long log's memory bound.
 DIRECT_MAX_NODES = 2000
 CG_TOLERANCE = 1e-8  # relative residual of the conjugate-gradient solve
+MIN_MOVING_NODES = 200  # an optimization bounded in flops still moves this many nodes
 
 
 class Edges:
@@ -72,25 +75,34 @@ class PoseGraph:
         self.edges.add(i, j, z, info, robust)
 
     def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C,
-                 nodes: np.ndarray | None = None) -> None:
+                 nodes: np.ndarray | None = None, max_flops: float = math.inf) -> None:
         """Gauss-Newton over all nodes but the first (held where it is); or over ``nodes``
-        alone (sorted indices), every other node held where it is, so the cost is that of
-        the part of the graph that moves."""
+        alone, every other node held where it is, so the cost is that of the part of the
+        graph that moves. With ``max_flops`` (``nodes`` nearest first), over only as many
+        of them as an LDLᵀ factorization of about that many multiplications holds: where a
+        place was revisited for hours, loop closures tie many passes together and the same
+        number of nodes fills the factor in several times as much."""
         if not self.edges.count:
             return
         i, j, z, info, robust = self.edges.arrays()
         n = len(self.poses)
-        if nodes is None:
-            nodes, local = np.arange(n), np.arange(n)
-        else:
-            local = np.full(n, -1, np.intp)  # each node's place among the moving ones
-            local[nodes] = np.arange(len(nodes))
-            keep = (local[i] >= 0) | (local[j] >= 0)
+        nodes = np.arange(n) if nodes is None else np.asarray(nodes, dtype=np.intp)
+        while True:
+            moving, li, lj, keep = _moving_part(n, nodes, i, j)
+            both = (li >= 0) & (lj >= 0)
+            m = len(moving)
+            direct = m <= DIRECT_MAX_NODES
+            if not direct:
+                break
+            node_order, flops = _graph.minimum_degree(m, li[both], lj[both])
+            if flops <= max_flops or m <= MIN_MOVING_NODES:
+                break
+            shrink = min(0.9, (max_flops / flops) ** (2.0 / 3.0))  # flops grow as ~m^1.5
+            nodes = nodes[:max(MIN_MOVING_NODES, int(m * shrink))]
+        nodes = moving
+        if keep is not None:
             i, j, z, info, robust = i[keep], j[keep], z[keep], info[keep], robust[keep]
-        li, lj = local[i], local[j]
         moves_i, moves_j = li >= 0, lj >= 0
-        both = moves_i & moves_j
-        m = len(nodes)
         anchor = np.arange(3) if nodes[0] == 0 else np.zeros(0, np.intp)  # the first node
         rows, cols = _hessian_pattern(((li[moves_i], li[moves_i]), (li[both], lj[both]),
                                        (lj[both], li[both]), (lj[moves_j], lj[moves_j])))
@@ -98,9 +110,7 @@ class PoseGraph:
         by_column = np.argsort(cols, kind="stable")  # compressed columns; duplicates summed
         indptr = np.concatenate(([0], np.cumsum(np.bincount(cols, minlength=3 * m))))
         indices = rows[by_column]
-        direct = m <= DIRECT_MAX_NODES
         if direct:
-            node_order = _graph.minimum_degree(m, li[both], lj[both])
             order = (3 * node_order[:, None] + np.arange(3)).ravel()
         g_index = np.concatenate([(3 * li[moves_i, None] + np.arange(3)).ravel(),
                                   (3 * lj[moves_j, None] + np.arange(3)).ravel()])
@@ -136,6 +146,20 @@ class PoseGraph:
             self.poses[nodes, 2] = wrap_angles(self.poses[nodes, 2])
             if np.abs(step[:, :2]).max() < 1e-4 and np.abs(step[:, 2]).max() < 1e-5:
                 break
+
+
+def _moving_part(n: int, nodes: np.ndarray, i: np.ndarray, j: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The moving nodes sorted, each edge's ends' places among them (-1: held) and which
+    edges touch them (None: all, when every node moves)."""
+    if len(nodes) == n:
+        return np.arange(n), i, j, None
+    moving = np.sort(nodes)
+    local = np.full(n, -1, np.intp)
+    local[moving] = np.arange(len(moving))
+    li, lj = local[i], local[j]
+    keep = (li >= 0) | (lj >= 0)
+    return moving, li[keep], lj[keep], keep
 
 
 def _hessian_pattern(blocks: tuple[tuple[np.ndarray, np.ndarray], ...]
