@@ -115,10 +115,10 @@ def test_an_optimization_bounded_in_flops_moves_only_the_nearest_nodes(monkeypat
         g = PoseGraph()
         info = np.diag([100.0, 100.0, 400.0])
         g.add_node(np.zeros(3))
-        for k in range(1, 120):  # 6 passes round a square of 20 nodes
+        for k in range(1, 120):  # a chain of 120 nodes, 0.2 m apart ...
             g.add_node(g.poses[k - 1] + np.array([0.2, 0.0, 0.0]))
             g.add_edge(k - 1, k, np.array([0.2, 0.0, 0.0]), info)
-            if k >= 20:  # the same place on the pass before
+            if k >= 20:  # ... each also tied to the node 20 back, as passes are by closures
                 g.add_edge(k - 20, k, np.array([0.2 * 20, 0.0, 0.0]), info, robust=True)
         g.poses[110:, 1] += 0.3  # the end of the last pass has drifted
         return g
