@@ -32,6 +32,7 @@ from dynslam_cli.localization.corners import CornerConfig
 from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.loops import LoopConfig
 from dynslam_cli.localization.scanmatch import MatchConfig
+from dynslam_cli.mapping.changes import ChangeConfig
 from dynslam_cli.mapping.grid import LOGODDS_STEP, MAX_LOGODDS
 from dynslam_cli.types import Scan
 
@@ -127,6 +128,7 @@ class Config:
     ekf: EkfConfig = field(default_factory=EkfConfig)
     match: MatchConfig = field(default_factory=MatchConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
+    changes: ChangeConfig = field(default_factory=ChangeConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
 
     def validate(self) -> Config:
@@ -173,6 +175,15 @@ class Config:
             (lp.pending_closures >= 1, "loop.pending_closures must be >= 1"),
             (lp.online_nodes >= 2, "loop.online_nodes must be >= 2"),
             (lp.online_flops > 0, "loop.online_flops must be > 0"),
+        ]
+        ch = self.changes
+        checks += [
+            (min(ch.blob_gap_m, ch.track_gate_m, ch.merge_distance_m) > 0,
+             "changes: blob_gap_m, track_gate_m and merge_distance_m must be > 0"),
+            (ch.track_gap_s >= 0 and ch.still_s >= 0 and ch.moving_speed_m_s > 0,
+             "changes: track_gap_s and still_s must be >= 0, moving_speed_m_s > 0"),
+            (ch.min_scans >= 1 and ch.min_area_m2 >= 0,
+             "changes: min_scans must be >= 1, min_area_m2 >= 0"),
         ]
         r = self.record
         checks += [

@@ -17,6 +17,7 @@ import numpy as np
 from dynslam_cli.config import Config
 from dynslam_cli.errors import ScoreError
 from dynslam_cli.geometry import wrap_angles
+from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
 from dynslam_cli.types import Scan
@@ -397,6 +398,77 @@ def score_events(snapshots: list[tuple[float, OccupancyMap, OccupancyMap]],
     vacated = _tally(cleared)
     return {"moved_objects_detected": moved,
             "vacated_places_cleared": {"cleared": vacated.pop("detected"), **vacated}}
+
+
+def truth_changes(truth: dict[str, Any]) -> list[dict[str, Any]]:
+    """The change events a run of the simulated world should report: each box's arrival
+    at a place (``appeared``, from its time until it left) and each departure (``vacated``,
+    from then until a box stood there again), with whether the map could know it: an
+    arrival where the robot had seen the floor empty and that it then saw (Table 1 makes
+    a box on a place never seen empty static), a departure from a place where the robot
+    had seen the box and then saw the floor."""
+    max_range, fov = _view(truth)
+    end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
+    boxes = [o for o in truth["objects"].values() if o["kind"] == "box"]
+    out = []
+    for obj_id, obj, i, arrived, left in _moves(truth):
+        place = obj["positions"][i][1]
+        seen_there = _seen_after(truth, obj_id, arrived, left)
+        if i > 0:
+            out.append({"kind": "appeared", "object": obj_id, "place": place,
+                        "from": arrived, "until": left,
+                        "detectable": seen_there and _known_free_before(truth, place, arrived)})
+        if left < end:
+            back = [t for o in boxes for t, c in o["positions"]
+                    if t > left and np.allclose(c, place)]
+            until = min(back, default=end)
+            out.append({"kind": "vacated", "object": obj_id, "place": place, "from": left,
+                        "until": until, "detectable": seen_there and _place_seen_empty(
+                            truth, place, left, until, max_range, fov)})
+    return out
+
+
+def score_changes(events: list[ChangeEvent], truth: dict[str, Any], tolerance_m: float = 0.3
+                  ) -> dict[str, Any]:
+    """changes.csv against the truth. An ``appeared`` or ``vacated`` event is right if it
+    lies within ``tolerance_m`` of a true event of its kind and was first seen in that
+    event's time (one event each, nearest first): precision over all such events, recall
+    over the true events the map could know. Walkers: ``moving`` events on a walker's path,
+    and appeared events there that are none of the boxes' (they must never be)."""
+    offset = float(truth.get("stamp_offset_s", 0.0))
+    true = truth_changes(truth)
+    walkers = {k: o for k, o in truth["objects"].items() if o["kind"] == "walker"}
+    out: dict[str, Any] = {}
+    right: set[int] = set()
+    for kind in ("appeared", "vacated"):
+        mine = [e for e in events if e.kind == kind]
+        theirs = [t for t in true if t["kind"] == kind]
+        pairs = sorted((math.hypot(e.x - t["place"][0], e.y - t["place"][1]), i, j)
+                       for i, e in enumerate(mine) for j, t in enumerate(theirs)
+                       if t["from"] - 1e-6 <= e.first_s - offset <= t["until"])
+        used_e, used_t = set(), set()
+        for d, i, j in pairs:
+            if d <= tolerance_m and i not in used_e and j not in used_t:
+                used_e.add(i)
+                used_t.add(j)
+                right.add(mine[i].id)
+        knowable = [j for j, t in enumerate(theirs) if t["detectable"]]
+        out[kind] = {"reported": len(mine), "right": len(used_e),
+                     "precision": _ratio(len(used_e), len(mine)),
+                     "true": len(knowable), "found": len(used_t & set(knowable)),
+                     "recall": _ratio(len(used_t & set(knowable)), len(knowable))}
+    moving = [e for e in events if e.kind == "moving"]
+    on_walkers = np.zeros(0, bool)
+    appeared_on_walkers = 0
+    if walkers:
+        pts = np.array([(e.x, e.y) for e in moving]).reshape(-1, 2)
+        on_walkers = mover_distance(pts, walkers) <= tolerance_m
+        stray = np.array([(e.x, e.y) for e in events
+                          if e.kind == "appeared" and e.id not in right]).reshape(-1, 2)
+        appeared_on_walkers = int((mover_distance(stray, walkers) <= tolerance_m).sum())
+    out["moving"] = {"reported": len(moving), "on_walkers": int(on_walkers.sum()),
+                     "appeared_on_walkers": appeared_on_walkers}
+    return out
 
 
 def _score_landmarks(landmarks: list[Landmark], truth: dict[str, Any], objects: dict[str, Any],

@@ -4,6 +4,7 @@ worker processes or on a Dask cluster), so both honour the same output contract.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import statistics
 import sys
@@ -16,6 +17,7 @@ from typing import Any
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
 from dynslam_cli.localization.frontend import ForkedFrontEnd, open_front_end
+from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.pipeline import run
 
 LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
@@ -96,6 +98,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                     "origin": [result.static.origin_x, result.static.origin_y],
                     **result.grid_memory},
             "localization": result.localization,
+            "changes": {"counts": {k: sum(e.kind == k for e in result.changes) for k in KINDS},
+                        "events": [dataclasses.asdict(e) for e in result.changes]},
             "config": config.to_dict(),
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else [])
             + ([recorded["file"]] if recorded else []),

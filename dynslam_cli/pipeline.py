@@ -28,6 +28,7 @@ from dynslam_cli.localization.cornerslam import CornerSlam
 from dynslam_cli.localization.frontend import Measure, Measurement
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.localization.scanmatch import scan_points
+from dynslam_cli.mapping.changes import ChangeEvent, change_events
 from dynslam_cli.mapping.dynamic import (
     TABLE_3,
     DynamicMapper,
@@ -63,6 +64,8 @@ class SlamResult:
     """Counts for the summary: scan matches, fallbacks, graph nodes, loop closures."""
     grid_memory: dict[str, float] = field(default_factory=dict)
     """What the final grids hold: tiles, cells stored and seen, bytes per cell seen."""
+    changes: list[ChangeEvent] = field(default_factory=list)
+    """What changed in the world during the run (final results only)."""
 
 
 class ScanStore:
@@ -173,7 +176,8 @@ class DynamicSlam:
         use_graph = config.loop.enabled and config.ekf.localization == "ekf"
         # With the pose graph the maps are made again at the end; while running, the filter
         # needs S alone (Table 3), and D only if someone looks (:meth:`current`).
-        self.mapper = DynamicMapper(config, dynamic=online_dynamic or not use_graph)
+        self.mapper = DynamicMapper(config, dynamic=online_dynamic or not use_graph,
+                                    changes=not use_graph)  # (else: when the maps are remade)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
         self._measure = front.measurement if front is not None else Measure(config)
@@ -274,12 +278,12 @@ class DynamicSlam:
         done, total)`` tells how the final work goes."""
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
         if self._loops is None or self._store is None or not len(self._store):
-            return self._result(self.mapper, trajectory)
+            return self._result(self.mapper, trajectory, final=True)
         say = on_phase or (lambda what, done, total: None)
         say("optimizing the pose graph", 0, 0)
         self._loops.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.estimates()))
-        mapper = DynamicMapper(self.config)
+        mapper = DynamicMapper(self.config, changes=True)
         mapper.grids.reserve_like(self.mapper.grids)
         self.mapper = mapper  # (the online maps are let go before the new ones fill)
         n = len(trajectory)
@@ -288,7 +292,7 @@ class DynamicSlam:
             if i % 256 == 0:
                 say("rebuilding the maps", i, n)
             mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)
-        return self._result(mapper, trajectory)
+        return self._result(mapper, trajectory, final=True)
 
     def estimates(self, scans: np.ndarray | None = None) -> np.ndarray:
         """The current pose estimates (N×3, map frame) of the scans by index (default: every
@@ -307,14 +311,20 @@ class DynamicSlam:
                                 base[:, 1] + s * off[:, 0] + c * off[:, 1],
                                 wrap_angles(base[:, 2] + off[:, 2])))
 
-    def _result(self, mapper: DynamicMapper, trajectory: np.ndarray) -> SlamResult:
+    def _result(self, mapper: DynamicMapper, trajectory: np.ndarray, final: bool = False
+                ) -> SlamResult:
+        landmarks = self.landmarks(mapper)
+        changes = []
+        if final and mapper.changes is not None:
+            changes = change_events(mapper.changes, [(lm.id, lm.x, lm.y) for lm in landmarks])
         return SlamResult(
             static=mapper.grids.snapshot("static"),
             dynamic=mapper.grids.snapshot("dynamic"),
             trajectory=trajectory,
-            landmarks=self.landmarks(mapper),
+            landmarks=landmarks,
             localization=self.counts(),
             grid_memory=mapper.grids.memory(),
+            changes=changes,
         )
 
     def counts(self) -> dict[str, int]:

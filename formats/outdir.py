@@ -22,14 +22,15 @@ from typing import Any
 from dynslam_cli.config import Config
 from dynslam_cli.errors import OutputError
 from dynslam_cli.pipeline import SlamResult
+from dynslam_formats.changes import write_changes
 from dynslam_formats.landmarks import write_landmarks
 from dynslam_formats.mapfile import write_map
 from dynslam_formats.picture import write_picture
 from dynslam_formats.tum import write_tum
 
 OUTPUT_FILES = ("static.pgm", "static.yaml", "static_prob.png", "static_prob.yaml",
-                "dynamic.pgm", "dynamic.yaml", "map.png", "landmarks.csv", "trajectory.tum",
-                "summary.json")
+                "dynamic.pgm", "dynamic.yaml", "map.png", "landmarks.csv", "changes.csv",
+                "trajectory.tum", "summary.json")
 
 
 def check_target(target: Path, force: bool, log: str | None = None,
@@ -201,9 +202,11 @@ def write_results(folder: Path, result: SlamResult, config: Config,
     write_map(folder, "dynamic", result.dynamic, m.free_threshold, m.occupied_threshold)
     summary.setdefault("map", {})["picture_pixels_per_cell"] = write_picture(
         folder / "map.png", result.static, result.dynamic, result.trajectory, result.landmarks,
-        m.occupied_threshold)
+        m.occupied_threshold, result.changes)
     with open(folder / "landmarks.csv", "w", encoding="utf-8", newline="") as f:
         write_landmarks(f, result.landmarks)
+    with open(folder / "changes.csv", "w", encoding="utf-8", newline="") as f:
+        write_changes(f, result.changes)
     with open(folder / "trajectory.tum", "w", encoding="utf-8", newline="\n") as f:
         write_tum(f, result.trajectory)
     (folder / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n",

@@ -1,6 +1,7 @@
 """A picture of S ∪ D: static map in grey levels (dark = occupied, grey = unknown), dynamic
 cells in red, the trajectory in blue, landmarks as small squares (static green, dynamic
-orange). ``map.png`` shows the part with walls, path or landmarks in it (plus a metre),
+orange), change events as numbered circles (appeared magenta, vacated cyan, moving
+violet; their rows in changes.csv). ``map.png`` shows the part with walls, path or
 upscaled by whole pixels per cell when small, with metre ticks in the map frame, a scale bar
 and a legend; the snapshots are the plain grid, one pixel per cell."""
 
@@ -14,12 +15,14 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import BAND_ROWS, OccupancyMap
 from dynslam_cli.pipeline import Landmark
 
 DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)
 LANDMARK_RGB = {"static": (20, 160, 60), "dynamic": (255, 140, 0)}
+CHANGE_RGB = {"appeared": (230, 0, 200), "vacated": (0, 170, 200), "moving": (120, 60, 200)}
 PAPER_RGB = (255, 255, 255)
 INK_RGB = (0, 0, 0)
 
@@ -34,12 +37,14 @@ NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
 def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
            landmarks: Sequence[Landmark], occupied_thresh: float,
            window: tuple[int, int, int, int] | None = None, scale: int = 1,
-           shrink: int = 1, into: tuple[Image.Image, int, int] | None = None) -> Image.Image:
+           shrink: int = 1, into: tuple[Image.Image, int, int] | None = None,
+           changes: Sequence[ChangeEvent] = ()) -> Image.Image:
     """The S ∪ D picture, north up: ``window`` (col0, row0, col1, row1, cells; default the
     whole grid), ``scale`` pixels per cell, or one pixel per ``shrink`` × ``shrink`` cells
     (the darkest of them, red if any is dynamic: walls and movers stay visible); the path
     and landmarks drawn at that scale. Drawn on a new image, or ``into`` (image, left, top)
-    an existing one at that place (a frame: no second copy of a large picture)."""
+    an existing one at that place (a frame: no second copy of a large picture); the
+    ``changes`` drawn numbered."""
     rows, cols = static.shape
     c0, r0, c1, r1 = window = window or (0, 0, cols, rows)
     k = shrink
@@ -75,6 +80,13 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
     for lm in landmarks:
         u, v = pixel(lm.x, lm.y)
         draw.rectangle((u - half, v - half, u + half, v + half), outline=LANDMARK_RGB[lm.cls])
+    font = ImageFont.load_default()
+    for e in changes:
+        u, v = pixel(e.x, e.y)
+        r = max(3.0, math.sqrt(e.size_m2) / 2 / res * px_per_cell + 2)
+        draw.ellipse((u - r, v - r, u + r, v + r), outline=CHANGE_RGB[e.kind], width=2)
+        draw.text((u + r + 1, v - r), str(e.id), fill=CHANGE_RGB[e.kind], font=font,
+                  anchor="lb")
     return image
 
 
@@ -133,7 +145,8 @@ def _metres(v: float) -> str:
 LEGEND = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
           ((128, 128, 128), "unknown"), (DYNAMIC_RGB, "dynamic D"),
           (TRAJECTORY_RGB, "trajectory"), (LANDMARK_RGB["static"], "static landmark"),
-          (LANDMARK_RGB["dynamic"], "dynamic landmark")]
+          (LANDMARK_RGB["dynamic"], "dynamic landmark"),
+          *((rgb, f"{kind} (changes.csv)") for kind, rgb in CHANGE_RGB.items())]
 
 
 def frame(static: OccupancyMap, window: tuple[int, int, int, int], size: tuple[int, int],
@@ -192,24 +205,24 @@ def picture_scale(window: tuple[int, int, int, int]) -> tuple[int, int]:
 
 
 def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
-                landmarks: Sequence[Landmark], occupied_thresh: float
-                ) -> tuple[Image.Image, float]:
+                landmarks: Sequence[Landmark], occupied_thresh: float,
+                changes: Sequence[ChangeEvent] = ()) -> tuple[Image.Image, float]:
     """map.png: the part of S ∪ D with something in it, upscaled when small (shrunk when
     very large), framed; and its pixels per cell."""
     window = content_window(static, trajectory, landmarks, occupied_thresh)
     scale, shrink = picture_scale(window)
     framed = frame(static, window, picture_size(window, scale, shrink), scale / shrink)
     render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
-           into=framed)
+           into=framed, changes=changes)
     return framed[0], scale / shrink
 
 
 def write_picture(path: Path, static: OccupancyMap, dynamic: OccupancyMap,
                   trajectory: np.ndarray, landmarks: Sequence[Landmark],
-                  occupied_thresh: float) -> float:
+                  occupied_thresh: float, changes: Sequence[ChangeEvent] = ()) -> float:
     """Write map.png; returns its pixels per cell."""
     image, pixels_per_cell = map_picture(static, dynamic, trajectory, landmarks,
-                                         occupied_thresh)
+                                         occupied_thresh, changes)
     image.save(path, optimize=False, compress_level=1)  # a third of the default's time
     return pixels_per_cell
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from dynslam_cli.geometry import compose
 from dynslam_cli.mapping import _grid
+from dynslam_cli.mapping.changes import ChangeRecorder
 from dynslam_cli.mapping.grid import LOGODDS_STEP, GridStack, Observation, logit, steps
 from dynslam_cli.types import Pose2D, Scan
 
@@ -113,7 +114,7 @@ class DynamicMapper:
     """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
     and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
 
-    def __init__(self, config: Config, dynamic: bool = True) -> None:
+    def __init__(self, config: Config, dynamic: bool = True, changes: bool = False) -> None:
         self.config = config
         self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
         m, d = config.map, config.dynamic
@@ -133,6 +134,9 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
+        self.changes = (ChangeRecorder(config, self.grids)
+                        if changes and d.enabled and config.changes.enabled else None)
+        """The evidence of change events, if asked for (S/D separation only)."""
         self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
                                                                       self._table_2)
                                       if t is not None)
@@ -141,6 +145,8 @@ class DynamicMapper:
         """One scan from the robot's pose ``pose`` (map frame)."""
         observation = self.observe(pose, scan)
         free_prev, hit_prev = self.classify_against_static_map(observation)
+        if self.changes is not None:
+            self.changes.record(scan.stamp, observation, hit_prev == FREE)
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
 

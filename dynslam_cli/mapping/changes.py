@@ -1,0 +1,371 @@
+"""Change events: what changed in the world during a run, as objects (``changes.csv``).
+
+The two-map update already says, scan by scan, where the world disagrees with S^{t-1}:
+
+* a beam *ends* where S was Free (Table 2's only way into D): something stands where there
+  was nothing. End points of neighbouring beams that lie close together are one *blob*;
+  blobs of successive scans at nearly the same place are one *track*. A track that travels
+  is ``moving`` (a walking person); a track that stays is an object standing still, and the
+  stationary tracks of one place, over the whole run, are one ``appeared`` event.
+* a beam *passes through* a cell S held Occupied (Table 1's third row): what stood there may
+  have gone. Such cells that end the run Free in S are a place seen to be vacated;
+  neighbouring ones are one ``vacated`` event.
+
+:class:`ChangeRecorder` keeps that evidence compactly while the maps are made (a few numbers
+per blob and per vacated cell, nothing per free cell); :func:`change_events` turns it into
+events when the run ends. A box moved out of view and seen at its new place gives one
+``vacated`` and one ``appeared`` event.
+"""
+
+from __future__ import annotations
+
+import math
+from array import array
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from dynslam_cli.mapping import _grid
+from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
+
+if TYPE_CHECKING:
+    from dynslam_cli.config import Config
+
+KINDS = ("appeared", "vacated", "moving")
+
+
+@dataclass(frozen=True)
+class ChangeConfig:
+    """Change events (changes.csv): objects that appeared, places vacated, movers' tracks."""
+
+    enabled: bool = True
+    """False: no change events (changes.csv has its header only)."""
+    blob_gap_m: float = 0.2
+    """End points of successive beams closer than this (metres) belong to one object."""
+    track_gate_m: float = 0.5
+    """A blob continues the track whose last blob is nearest, if within this (metres) ..."""
+    track_gap_s: float = 1.0
+    """... and seen at most this long ago (seconds)."""
+    moving_speed_m_s: float = 0.15
+    """A track whose place changes faster than this is moving (m/s; the median of its speed
+    over ``still_s / 2`` at a time, so a standing object seen from another side, whose seen
+    centre jumps once, stays still)."""
+    moving_distance_m: float = 0.5
+    """... and it must also go this far from where it was first seen (metres): further than
+    the seen centre of a standing object wanders."""
+    still_s: float = 1.0
+    """An object counts as standing still only if one track of it lasts this long (s)."""
+    merge_distance_m: float = 0.3
+    """Stationary tracks whose places lie this close (metres) are one object."""
+    min_scans: int = 5
+    """An event needs evidence from at least this many scans."""
+    min_area_m2: float = 0.02
+    """A vacated place needs at least this many square metres of cells gone Free."""
+
+
+@dataclass(frozen=True)
+class ChangeEvent:
+    """One row of changes.csv: times are the log's stamps (s), the place in the map frame."""
+
+    id: int
+    kind: str  # one of KINDS
+    first_s: float
+    last_s: float
+    x: float
+    y: float
+    size_m2: float
+    scans: int
+    landmarks: tuple[int, ...] = ()
+
+
+# A blob's record: its scan's index, centroid x y, bounding box x0 y0 x1 y1, cell count.
+BLOB_FIELDS = 8
+SCAN, CX, CY, X0, Y0, X1, Y1, CELLS = range(BLOB_FIELDS)
+
+
+
+
+class ChangeRecorder:
+    """The evidence of change, scan by scan, while a :class:`DynamicMapper` maps: the
+    *sightings* (blobs of hits where S^{t-1} was Free), the *clearings* (blobs of cells D
+    held Occupied that a beam crossed) and the cells S held Occupied that a beam crossed."""
+
+    def __init__(self, config: Config, grids: GridStack) -> None:
+        m = config.map
+        self.config = config.changes
+        self.grids = grids
+        self._occupied = int(steps(logit(m.occupied_threshold)))
+        self.free_limit = int(steps(logit(m.free_threshold)))
+        clamp, miss = int(steps(logit(m.p_clamp_max))), int(steps(logit(m.p_miss)))
+        self.passes_to_leave = math.ceil((clamp - self._occupied) / -miss)
+        """Free passes that take a cell from S's clamp out of Occupied (Table 1, row 3): a
+        cell crossed more often was hit again in between, a contested wall, not a place
+        vacated."""
+        self.stamps = array("d")  # per scan
+        self._sightings = array("d")
+        self._clearings = array("d")
+        self._crossed = array("q")  # flat index of each crossed cell ...
+        self._crossed_scan = array("i")  # ... and the scan that crossed it
+
+    def record(self, stamp: float, obs: Observation, hit_on_free: np.ndarray) -> None:
+        """One scan's evidence: its observation (before the maps are updated with it) and
+        which of its hits fell where S^{t-1} was Free (bool per hit, in beam order)."""
+        scan = len(self.stamps)
+        self.stamps.append(stamp)
+        if hit_on_free.any():
+            self._add_blobs(self._sightings, scan, obs.hit[hit_on_free])
+        layers = self.grids.layers
+        if "dynamic" in layers:
+            cleared = _grid.cells_above(layers["dynamic"].reshape(-1), obs.free, self._occupied)
+            if len(cleared):
+                self._add_blobs(self._clearings, scan, cleared)
+        crossed = _grid.cells_above(layers["static"].reshape(-1), obs.free, self._occupied)
+        if len(crossed):
+            self._crossed.frombytes(crossed.astype(np.int64).tobytes())
+            self._crossed_scan.extend([scan] * len(crossed))
+
+    def _add_blobs(self, into: array, scan: int, cells: np.ndarray) -> None:
+        """Cells (in beam order) in blobs: split where successive ones lie ``blob_gap_m``
+        apart, then blobs whose boxes come that close joined again (an object's two faces,
+        a beam between them ending elsewhere)."""
+        rows, cols = self.grids.world_cells(cells)
+        xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
+        gap = self.config.blob_gap_m
+        label = np.concatenate(([0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T) > gap)))
+        if label[-1] > 0:
+            pieces = range(label[-1] + 1)
+            boxes = np.array([(*xy[label == k].min(0), *xy[label == k].max(0)) for k in pieces])
+            label = _box_groups(boxes, gap + 1e-9)[label]
+        order = np.argsort(label, kind="stable")
+        xy, label = xy[order], label[order]
+        starts = np.flatnonzero(np.diff(label, prepend=-1))
+        count = np.diff(np.append(starts, len(xy)))
+        rows_out = np.column_stack((np.full(len(starts), scan), np.add.reduceat(xy, starts)
+                                    / count[:, None], np.minimum.reduceat(xy, starts),
+                                    np.maximum.reduceat(xy, starts), count))
+        into.frombytes(rows_out.astype(np.float64).tobytes())
+
+    def sightings(self) -> np.ndarray:
+        """Every sighting (N × BLOB_FIELDS), in scan order."""
+        return np.frombuffer(self._sightings, np.float64).reshape(-1, BLOB_FIELDS)
+
+    def clearings(self) -> np.ndarray:
+        return np.frombuffer(self._clearings, np.float64).reshape(-1, BLOB_FIELDS)
+
+    def crossed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
+        return (np.frombuffer(self._crossed, np.int64),
+                np.frombuffer(self._crossed_scan, np.int32).astype(np.int64))
+
+
+def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, float]]
+                  ) -> list[ChangeEvent]:
+    """The run's events, in order of first sighting, numbered from 1: the recorder's
+    evidence read against the final S; ``landmarks`` (id, x, y of the landmark map) name
+    the landmarks on each event's place."""
+    config = recorder.config
+    if not config.enabled:
+        return []
+    moving, trail, still = _tracks(recorder)
+    found = [*moving, *_standing_objects(recorder, still), *_vacated_static(recorder, trail)]
+    found.sort(key=lambda e: (e.first_s, e.x, e.y, e.kind))
+    places = np.array([(x, y) for _, x, y in landmarks], dtype=np.float64).reshape(-1, 2)
+    tree = cKDTree(places) if len(places) else None
+    out = []
+    for n, e in enumerate(found, start=1):
+        carried: tuple[int, ...] = ()
+        if tree is not None:
+            near = tree.query_ball_point((e.x, e.y), math.sqrt(e.size_m2) / 2)
+            carried = tuple(sorted(landmarks[k][0] for k in near))
+        out.append(ChangeEvent(n, e.kind, e.first_s, e.last_s, e.x, e.y, e.size_m2, e.scans,
+                               carried))
+    return out
+
+
+def _tracks(recorder: ChangeRecorder
+            ) -> tuple[list[ChangeEvent], np.ndarray, list[np.ndarray]]:
+    """Sightings linked into tracks: the ``moving`` events, the trail of every moving
+    track (stamp, x, y of its sightings) and the still tracks (their sightings)."""
+    config = recorder.config
+    blobs = recorder.sightings()
+    stamps = np.asarray(recorder.stamps)
+    res = recorder.grids.resolution
+    moving, still, trail = [], [], [np.zeros((0, 3))]
+    for members in _link(blobs, stamps, config.track_gate_m, config.track_gap_s):
+        b = blobs[members]
+        t = stamps[b[:, SCAN].astype(np.int64)]
+        if _median_speed(t, b[:, CX:CY + 1], config.still_s / 2) <= config.moving_speed_m_s:
+            still.append(b)
+            continue
+        if np.hypot(*(b[:, CX:CY + 1] - b[0, CX:CY + 1]).T).max() < config.moving_distance_m:
+            continue  # (jitter at an object's edge)
+        trail.append(np.column_stack((t, b[:, CX:CY + 1])))
+        if len(b) >= config.min_scans:
+            size = np.median((b[:, X1] - b[:, X0] + res) * (b[:, Y1] - b[:, Y0] + res))
+            moving.append(ChangeEvent(0, "moving", float(t[0]), float(t[-1]),
+                                      float(b[:, CX].mean()), float(b[:, CY].mean()),
+                                      float(size), len(b)))
+    return moving, np.vstack(trail), still
+
+
+def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
+          ) -> list[np.ndarray]:
+    """Tracks (blob indices in time order): each scan's blobs continue the nearest track
+    seen within ``gap_s`` whose last blob lies within ``gate``, nearest pairs first; one
+    blob a scan per track."""
+    tracks: list[list[int]] = []
+    active: list[int] = []  # tracks that may continue
+    scan_starts = np.flatnonzero(np.diff(blobs[:, SCAN], prepend=-1.0) != 0)
+    for s0, s1 in zip(scan_starts, [*scan_starts[1:], len(blobs)], strict=True):
+        now = stamps[int(blobs[s0, SCAN])]
+        active = [k for k in active if now - stamps[int(blobs[tracks[k][-1], SCAN])] <= gap_s]
+        taken = np.zeros(s1 - s0, bool)
+        if active:
+            last = blobs[[tracks[k][-1] for k in active], CX:CY + 1]
+            d = np.hypot(*(blobs[s0:s1, None, CX:CY + 1] - last[None]).transpose(2, 0, 1))
+            extended = set()
+            for flat in np.argsort(d, axis=None, kind="stable"):
+                i, j = divmod(int(flat), len(active))
+                if d[i, j] > gate:
+                    break
+                if taken[i] or j in extended:
+                    continue
+                tracks[active[j]].append(s0 + i)
+                taken[i] = True
+                extended.add(j)
+        for i in np.flatnonzero(~taken):
+            active.append(len(tracks))
+            tracks.append([s0 + int(i)])
+    return [np.asarray(t) for t in tracks]
+
+
+def _median_speed(t: np.ndarray, places: np.ndarray, window_s: float) -> float:
+    """Median over a track of its speed (m/s) from each sighting to the first one at least
+    ``window_s`` later; over its whole span if it is shorter; 0 for a single instant."""
+    later = np.searchsorted(t, t + window_s)
+    ok = later < len(t)
+    if not ok.any():
+        span = t[-1] - t[0]
+        return float(np.hypot(*(places[-1] - places[0])) / span) if span > 0 else 0.0
+    i, j = np.flatnonzero(ok), later[ok]
+    return float(np.median(np.hypot(*(places[j] - places[i]).T) / (t[j] - t[i])))
+
+
+def _neighbour_groups(points: np.ndarray, within: float) -> np.ndarray:
+    """Group label of each point: points closer than ``within`` are in one group."""
+    pairs = cKDTree(points).query_pairs(within, output_type="ndarray")
+    n = len(points)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _box_groups(boxes: np.ndarray, within: float) -> np.ndarray:
+    """Group label of each box (x0, y0, x1, y1): boxes less than ``within`` apart are in
+    one group (pairs found by their centres, so no n × n table)."""
+    centres = (boxes[:, :2] + boxes[:, 2:]) / 2
+    reach = np.hypot(*(boxes[:, 2:] - boxes[:, :2]).T).max() + within
+    pairs = cKDTree(centres).query_pairs(reach, output_type="ndarray")
+    a, b = boxes[pairs[:, 0]], boxes[pairs[:, 1]]
+    near = np.maximum(a[:, :2] - b[:, 2:], b[:, :2] - a[:, 2:]).max(-1) < within
+    n = len(boxes)
+    graph = coo_matrix((np.ones(near.sum()), (pairs[near, 0], pairs[near, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list[ChangeEvent]:
+    """Still tracks grouped by place. At each place, runs of sightings that no clearing of
+    the place interrupts are objects that ``appeared`` there (if seen standing for
+    ``still_s`` in ``min_scans`` scans); the clearings after one are it ``vacated``."""
+    if not still:
+        return []
+    config, res = recorder.config, recorder.grids.resolution
+    stamps = np.asarray(recorder.stamps)
+    clearings = recorder.clearings()
+    groups = _box_groups(np.array([(b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(),
+                                    b[:, Y1].max()) for b in still]), config.merge_distance_m)
+    out = []
+    for g in range(groups.max() + 1):
+        b = np.vstack([still[k] for k in np.flatnonzero(groups == g)])
+        box = (b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(), b[:, Y1].max())
+        seen = np.unique(b[:, SCAN]).astype(np.int64)
+        inside = ((clearings[:, CX] >= box[0] - res) & (clearings[:, CX] <= box[2] + res)
+                  & (clearings[:, CY] >= box[1] - res) & (clearings[:, CY] <= box[3] + res))
+        c = clearings[inside]
+        c = c[~np.isin(c[:, SCAN], seen)]  # (a beam past a standing object's edge)
+        for episode, gone in _episodes(seen, float(np.median(b[:, CELLS])), c):
+            sightings = b[np.isin(b[:, SCAN], episode)]
+            t = stamps[episode]
+            if t[-1] - t[0] < config.still_s or len(episode) < config.min_scans:
+                continue
+            x0, y0 = sightings[:, X0].min(), sightings[:, Y0].min()
+            x1, y1 = sightings[:, X1].max(), sightings[:, Y1].max()
+            place = ((x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0 + res) * (y1 - y0 + res))
+            out.append(ChangeEvent(0, "appeared", float(t[0]), float(t[-1]), *place,
+                                   len(episode)))
+            gone = gone[gone[:, SCAN] > episode[-1]]
+            enough = max(config.min_area_m2 / res ** 2, np.median(sightings[:, CELLS]) / 2)
+            cleared = np.cumsum(gone[:, CELLS])
+            if len(gone) and cleared[-1] >= enough:  # seen gone from when that much was
+                scans = np.unique(gone[:, SCAN]).astype(np.int64)
+                when = int(gone[np.searchsorted(cleared, enough), SCAN])
+                out.append(ChangeEvent(0, "vacated", float(stamps[when]),
+                                       float(stamps[scans[-1]]), *place, len(scans)))
+    return out
+
+
+def _episodes(seen: np.ndarray, sighted_cells: float, clearings: np.ndarray
+              ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split a place's sighting scans (sorted) where, between two sightings, clearings
+    took away at least half as many cells of it as a sighting shows (the median): each run
+    of sightings, with the clearings that followed it before the next sighting."""
+    cut = np.searchsorted(seen, clearings[:, SCAN])  # the sighting each clearing precedes
+    cleared = np.bincount(cut, weights=clearings[:, CELLS], minlength=len(seen) + 1)
+    ends = [*np.flatnonzero(cleared[1:len(seen)] >= sighted_cells / 2) + 1, len(seen)]
+    return [(seen[a:z], clearings[(cut > a) & (cut <= z)])
+            for a, z in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
+    """Places S held Occupied, crossed by beams at most ``passes_to_leave`` times each and
+    Free at the end, grouped by neighbourhood (cells ``merge_distance_m`` apart): a static
+    object gone, seen so when half its cells had been crossed.
+    A place a mover was seen beside when it went is that mover's trail, not an event."""
+    config, grids = recorder.config, recorder.grids
+    cells, scans = recorder.crossed()
+    if not len(cells):
+        return []
+    unique, which, times = np.unique(cells, return_inverse=True, return_counts=True)
+    gone = ((grids.layers["static"].reshape(-1)[unique] < recorder.free_limit)
+            & (times <= recorder.passes_to_leave))
+    if not gone.any():
+        return []
+    rows, cols = grids.world_cells(unique[gone])
+    res = grids.resolution
+    groups = _neighbour_groups(np.column_stack((rows, cols)) * res, config.merge_distance_m)
+    first_crossed = np.full(len(unique), np.iinfo(np.int64).max)
+    np.minimum.at(first_crossed, which, scans)
+    first_crossed = first_crossed[gone]
+    group_of = np.full(len(unique), -1, np.int64)
+    group_of[gone] = groups
+    record_group = group_of[which]
+    stamps = np.asarray(recorder.stamps)
+    out = []
+    for g in range(groups.max() + 1):
+        members = groups == g
+        area = float(members.sum()) * res * res
+        if area < config.min_area_m2:
+            continue
+        seen = np.unique(scans[record_group == g])
+        x, y = (cols[members].mean() + 0.5) * res, (rows[members].mean() + 0.5) * res
+        # seen gone from when half its cells had been crossed
+        first = float(stamps[np.sort(first_crossed[members])[members.sum() // 2]])
+        last = float(stamps[seen[-1]])
+        near = np.abs(trail[:, 0] - first) <= config.track_gap_s
+        if np.any(np.hypot(trail[near, 1] - x, trail[near, 2] - y) <= config.track_gate_m):
+            continue  # (a mover's trail)
+        out.append(ChangeEvent(0, "vacated", first, last, float(x), float(y), area, len(seen)))
+    return out
