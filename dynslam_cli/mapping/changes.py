@@ -107,7 +107,8 @@ class ChangeRecorder:
         vacated."""
         self.stamps = array("d")  # per scan
         self._sightings = array("d")
-        self._clearings = array("d")
+        self._cleared = array("q")  # flat index of each cell D held Occupied, crossed ...
+        self._cleared_scan = array("i")  # ... and the scan that crossed it
         self._crossed = array("q")  # flat index of each crossed cell ...
         self._crossed_scan = array("i")  # ... and the scan that crossed it
 
@@ -122,7 +123,8 @@ class ChangeRecorder:
         if "dynamic" in layers:
             cleared = _grid.cells_above(layers["dynamic"].reshape(-1), obs.free, self._occupied)
             if len(cleared):
-                self._add_blobs(self._clearings, scan, cleared)
+                self._cleared.frombytes(cleared.astype(np.int64).tobytes())
+                self._cleared_scan.extend([scan] * len(cleared))
         crossed = _grid.cells_above(layers["static"].reshape(-1), obs.free, self._occupied)
         if len(crossed):
             self._crossed.frombytes(crossed.astype(np.int64).tobytes())
@@ -153,8 +155,13 @@ class ChangeRecorder:
         """Every sighting (N × BLOB_FIELDS), in scan order."""
         return np.frombuffer(self._sightings, np.float64).reshape(-1, BLOB_FIELDS)
 
-    def clearings(self) -> np.ndarray:
-        return np.frombuffer(self._clearings, np.float64).reshape(-1, BLOB_FIELDS)
+    def clearings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
+        indices and scans."""
+        cells = np.frombuffer(self._cleared, np.int64)
+        rows, cols = self.grids.world_cells(cells)
+        xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
+        return xy, cells, np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
 
     def crossed(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
@@ -284,49 +291,60 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
         return []
     config, res = recorder.config, recorder.grids.resolution
     stamps = np.asarray(recorder.stamps)
-    clearings = recorder.clearings()
+    cleared_xy, cleared_cells, cleared_scans = recorder.clearings()
     groups = _box_groups(np.array([(b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(),
                                     b[:, Y1].max()) for b in still]), config.merge_distance_m)
     out = []
     for g in range(groups.max() + 1):
         b = np.vstack([still[k] for k in np.flatnonzero(groups == g)])
-        box = (b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(), b[:, Y1].max())
+        x0, y0 = b[:, X0].min() - res, b[:, Y0].min() - res
+        x1, y1 = b[:, X1].max() + res, b[:, Y1].max() + res
         seen = np.unique(b[:, SCAN]).astype(np.int64)
-        inside = ((clearings[:, CX] >= box[0] - res) & (clearings[:, CX] <= box[2] + res)
-                  & (clearings[:, CY] >= box[1] - res) & (clearings[:, CY] <= box[3] + res))
-        c = clearings[inside]
-        c = c[~np.isin(c[:, SCAN], seen)]  # (a beam past a standing object's edge)
-        for episode, gone in _episodes(seen, float(np.median(b[:, CELLS])), c):
+        inside = ((cleared_xy[:, 0] >= x0) & (cleared_xy[:, 0] <= x1)
+                  & (cleared_xy[:, 1] >= y0) & (cleared_xy[:, 1] <= y1))
+        enough = max(config.min_area_m2 / res ** 2, float(np.median(b[:, CELLS])) / 2)
+        for episode, gone in _episodes(seen, cleared_cells[inside],
+                                       cleared_scans[inside], enough):
             sightings = b[np.isin(b[:, SCAN], episode)]
             t = stamps[episode]
             if t[-1] - t[0] < config.still_s or len(episode) < config.min_scans:
                 continue
-            x0, y0 = sightings[:, X0].min(), sightings[:, Y0].min()
-            x1, y1 = sightings[:, X1].max(), sightings[:, Y1].max()
-            place = ((x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0 + res) * (y1 - y0 + res))
+            ex0, ey0 = sightings[:, X0].min(), sightings[:, Y0].min()
+            ex1, ey1 = sightings[:, X1].max(), sightings[:, Y1].max()
+            place = ((ex0 + ex1) / 2, (ey0 + ey1) / 2, (ex1 - ex0 + res) * (ey1 - ey0 + res))
             out.append(ChangeEvent(0, "appeared", float(t[0]), float(t[-1]), *place,
                                    len(episode)))
-            gone = gone[gone[:, SCAN] > episode[-1]]
-            enough = max(config.min_area_m2 / res ** 2, np.median(sightings[:, CELLS]) / 2)
-            cleared = np.cumsum(gone[:, CELLS])
-            if len(gone) and cleared[-1] >= enough:  # seen gone from when that much was
-                scans = np.unique(gone[:, SCAN]).astype(np.int64)
-                when = int(gone[np.searchsorted(cleared, enough), SCAN])
-                out.append(ChangeEvent(0, "vacated", float(stamps[when]),
-                                       float(stamps[scans[-1]]), *place, len(scans)))
+            if gone is not None:
+                out.append(ChangeEvent(0, "vacated", float(stamps[gone[0]]),
+                                       float(stamps[gone[-1]]), *place, len(gone)))
     return out
 
 
-def _episodes(seen: np.ndarray, sighted_cells: float, clearings: np.ndarray
-              ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Split a place's sighting scans (sorted) where, between two sightings, clearings
-    took away at least half as many cells of it as a sighting shows (the median): each run
-    of sightings, with the clearings that followed it before the next sighting."""
-    cut = np.searchsorted(seen, clearings[:, SCAN])  # the sighting each clearing precedes
-    cleared = np.bincount(cut, weights=clearings[:, CELLS], minlength=len(seen) + 1)
-    ends = [*np.flatnonzero(cleared[1:len(seen)] >= sighted_cells / 2) + 1, len(seen)]
-    return [(seen[a:z], clearings[(cut > a) & (cut <= z)])
-            for a, z in zip([0, *ends[:-1]], ends, strict=True)]
+def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: float
+              ) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Split a place's sighting scans (sorted) where, between two sightings, beams cleared
+    ``enough`` cells of it that had not been cleared since the run of sightings began (the
+    object seen gone; a beam past a standing object's edge clears the same few cells again
+    and again): each run of sightings and, if it ended so, the scans that saw it gone (from
+    the one that brought the count to ``enough`` to the next sighting)."""
+    order = np.argsort(scans, kind="stable")
+    cells, scans = cells[order], scans[order]
+    cut = np.searchsorted(seen, scans, side="right")  # sightings up to each clearing
+    out: list[tuple[np.ndarray, np.ndarray | None]] = []
+    start, flickered = 0, set()
+    for gap in np.unique(cut[cut > 0]):
+        here = cut == gap
+        fresh = ~np.isin(cells[here], list(flickered)) & ~np.isin(scans[here], seen)
+        new = np.unique(cells[here][fresh], return_index=True)[1]
+        if len(new) >= enough:
+            reached = np.sort(new)[math.ceil(enough) - 1]
+            gone = np.unique(scans[here][fresh][reached:])
+            out.append((seen[start:gap], gone))
+            start, flickered = gap, set()
+        else:
+            flickered.update(cells[here].tolist())
+    out.append((seen[start:], None))
+    return [e for e in out if len(e[0])]
 
 
 def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
