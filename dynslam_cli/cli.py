@@ -485,6 +485,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
       arena      12 m room with pillars; boxes moved 20 times in front of the robot
       hall       19 m × 11 m hall, 2-10 walking robots, boxes moved out of view
       crowd      14 m × 10 m open space, three people walking round the robot
+      office     50 m corridor into a 24 m hall: few corners (hard); a box moved
 
     \b
     Examples:
@@ -528,7 +529,9 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
     \b
     With --truth: trajectory ATE after SE(2) alignment (and raw odometry's), static map
     precision / recall / ghost rate, dynamic map precision, moved objects detected, vacated
-    places cleared, landmarks on true corners.
+    places cleared, landmarks on true corners; change events (changes.csv) matched to the
+    true ones within 0.3 m: precision and recall of appeared and vacated, moving tracks in
+    the walkers' loops.
     With --relations: the Kümmerle et al. (2009) relation metric (translational m,
     rotational deg, mean ± std, plus squared errors and matched/unmatched counts).
 
@@ -544,7 +547,13 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
         import json
 
         from dynslam_cli.errors import InputError
-        from dynslam_cli.evaluate import MapThresholds, relation_errors, score_run
+        from dynslam_cli.evaluate import (
+            MapThresholds,
+            relation_errors,
+            score_changes,
+            score_run,
+        )
+        from dynslam_formats.changes import read_changes
         from dynslam_formats.landmarks import read_landmarks
         from dynslam_formats.mapfile import read_map
         from dynslam_formats.relations import read_relations
@@ -565,9 +574,17 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
                     landmarks = read_landmarks(f)
             except (OSError, KeyError, ValueError) as e:
                 raise InputError(str(folder / "landmarks.csv"), f"cannot read: {e}") from None
+            true, trajectory = read_truth(truth), read_tum(tum)
             report["truth"] = score_run(
-                static.grid, dynamic.grid, read_tum(tum), landmarks, read_truth(truth),
+                static.grid, dynamic.grid, trajectory, landmarks, true,
                 MapThresholds(static.free_thresh, static.occupied_thresh))
+            if (folder / "changes.csv").exists():  # (not in folders of older versions)
+                try:
+                    with open(folder / "changes.csv", encoding="utf-8") as f:
+                        events = read_changes(f)
+                except (OSError, KeyError, ValueError) as e:
+                    raise InputError(str(folder / "changes.csv"), f"cannot read: {e}") from None
+                report["truth"]["changes"] = score_changes(events, trajectory, true)
         if relations is not None:
             report["relations"] = relation_errors(read_tum(tum), read_relations(relations))
         if as_json:

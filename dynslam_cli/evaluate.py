@@ -7,12 +7,14 @@ files. Distances are in metres, angles in degrees where reported.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import ScoreError
@@ -428,14 +430,16 @@ def truth_changes(truth: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
-def score_changes(events: list[ChangeEvent], truth: dict[str, Any], tolerance_m: float = 0.3
-                  ) -> dict[str, Any]:
-    """changes.csv against the truth. An ``appeared`` or ``vacated`` event is right if it
+def score_changes(events: list[ChangeEvent], trajectory: np.ndarray, truth: dict[str, Any],
+                  tolerance_m: float = 0.3) -> dict[str, Any]:
+    """changes.csv against the truth, its places moved into the truth's frame by the
+    alignment the trajectory's ATE uses. An ``appeared`` or ``vacated`` event is right if it
     lies within ``tolerance_m`` of a true event of its kind and was first seen in that
     event's time (one event each, nearest first): precision over all such events, recall
-    over the true events the map could know. Walkers: ``moving`` events on a walker's path,
-    and appeared events there that are none of the boxes' (they must never be)."""
+    over the true events the map could know. Walkers: ``moving`` events in a walker's
+    loop, and appeared events there that are none of the boxes' (they must never be)."""
     offset = float(truth.get("stamp_offset_s", 0.0))
+    events = _aligned_events(events, trajectory, truth)
     true = truth_changes(truth)
     walkers = {k: o for k, o in truth["objects"].items() if o["kind"] == "walker"}
     out: dict[str, Any] = {}
@@ -457,18 +461,45 @@ def score_changes(events: list[ChangeEvent], truth: dict[str, Any], tolerance_m:
                      "precision": _ratio(len(used_e), len(mine)),
                      "true": len(knowable), "found": len(used_t & set(knowable)),
                      "recall": _ratio(len(used_t & set(knowable)), len(knowable))}
-    moving = [e for e in events if e.kind == "moving"]
-    on_walkers = np.zeros(0, bool)
-    appeared_on_walkers = 0
-    if walkers:
-        pts = np.array([(e.x, e.y) for e in moving]).reshape(-1, 2)
-        on_walkers = mover_distance(pts, walkers) <= tolerance_m
-        stray = np.array([(e.x, e.y) for e in events
-                          if e.kind == "appeared" and e.id not in right]).reshape(-1, 2)
-        appeared_on_walkers = int((mover_distance(stray, walkers) <= tolerance_m).sum())
-    out["moving"] = {"reported": len(moving), "on_walkers": int(on_walkers.sum()),
-                     "appeared_on_walkers": appeared_on_walkers}
+    moving = np.array([(e.x, e.y) for e in events if e.kind == "moving"]).reshape(-1, 2)
+    stray = np.array([(e.x, e.y) for e in events
+                      if e.kind == "appeared" and e.id not in right]).reshape(-1, 2)
+    out["moving"] = {"reported": len(moving),
+                     "on_walkers": int(_in_loops(moving, walkers, tolerance_m).sum()),
+                     "appeared_on_walkers": int(_in_loops(stray, walkers, tolerance_m).sum())}
     return out
+
+
+def _aligned_events(events: list[ChangeEvent], trajectory: np.ndarray, truth: dict[str, Any]
+                    ) -> list[ChangeEvent]:
+    """The events with their places in the truth's frame: the rigid alignment of the
+    trajectory's positions onto the true ones at the same stamps (as for the ATE)."""
+    est = np.array(trajectory, dtype=float)
+    est[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    ref = np.asarray(truth["poses"], dtype=float)
+    i, j = match_stamps(est, ref, 1e-3)
+    if len(i) < 2 or not events:
+        return events
+    a, b = est[i, 1:3], ref[j, 1:3]
+    _, angle = align_se2(a, b)
+    c, s = math.cos(angle), math.sin(angle)
+    moved = (np.array([(e.x, e.y) for e in events]) - a.mean(0)) @ np.array([[c, s], [-s, c]])
+    moved += b.mean(0)
+    return [dataclasses.replace(e, x=float(x), y=float(y)) for e, (x, y) in zip(events, moved,
+                                                                               strict=True)]
+
+
+def _in_loops(points: np.ndarray, walkers: dict[str, Any], tolerance_m: float) -> np.ndarray:
+    """Whether each point lies within a walker's loop (its waypoints' hull) or within
+    ``tolerance_m`` of its path (less its radius): a track's centre lies inside the curve
+    it walked."""
+    inside = np.zeros(len(points), bool)
+    if not len(points):
+        return inside
+    for obj in walkers.values():
+        loop = np.asarray(obj["loop"], dtype=float)
+        inside |= Delaunay(loop).find_simplex(points) >= 0
+    return inside | (mover_distance(points, walkers) <= tolerance_m) if walkers else inside
 
 
 def _score_landmarks(landmarks: list[Landmark], truth: dict[str, Any], objects: dict[str, Any],

@@ -275,14 +275,16 @@ def add_clamped(cell_t[::1] logodds, const Py_ssize_t[::1] cells,
             logodds[c] = <cell_t>(lo if v < lo else hi if v > hi else v)
 
 
-def cells_above(const cell_t[::1] logodds, const Py_ssize_t[::1] cells, int threshold):
+def cells_above(const cell_t[::1] logodds, const Py_ssize_t[::1] cells, int threshold,
+                bint above=True):
     """The cells (flat indices, in their order) whose stored log-odds exceed ``threshold``
-    (steps): of the cells a scan saw free, those S held Occupied (change events)."""
+    (steps), or with ``above`` False do not: of the cells a scan saw free, those S held
+    Occupied; of those it hit, those S did not yet (change events)."""
     cdef Py_ssize_t n = cells.shape[0], i, k = 0
     out = np.empty(n, dtype=np.intp)
     cdef Py_ssize_t[::1] o = out
     with nogil:
         for i in range(n):
             o[k] = cells[i]
-            k += logodds[cells[i]] > threshold
+            k += (logodds[cells[i]] > threshold) == above
     return out[:k]

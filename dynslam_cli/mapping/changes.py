@@ -57,8 +57,10 @@ class ChangeConfig:
     moving_distance_m: float = 0.5
     """... and it must also go this far from where it was first seen (metres): further than
     the seen centre of a standing object wanders."""
-    still_s: float = 1.0
-    """An object counts as standing still only if one track of it lasts this long (s)."""
+    still_s: float = 3.0
+    """An object counts as standing (appeared, or vacated from S) only if it was seen
+    standing for this long (seconds; appeared: in at least half the scans of that time): a
+    walker stands nowhere that long."""
     merge_distance_m: float = 0.3
     """Stationary tracks whose places lie this close (metres) are one object."""
     min_scans: int = 5
@@ -111,6 +113,8 @@ class ChangeRecorder:
         self._cleared_scan = array("i")  # ... and the scan that crossed it
         self._crossed = array("q")  # flat index of each crossed cell ...
         self._crossed_scan = array("i")  # ... and the scan that crossed it
+        self._rising = array("q")  # flat index of each cell hit where S is not Occupied ...
+        self._rising_scan = array("i")  # ... (but not Free around it) and the scan
 
     def record(self, stamp: float, obs: Observation, hit_on_free: np.ndarray) -> None:
         """One scan's evidence: its observation (before the maps are updated with it) and
@@ -125,10 +129,15 @@ class ChangeRecorder:
             if len(cleared):
                 self._cleared.frombytes(cleared.astype(np.int64).tobytes())
                 self._cleared_scan.extend([scan] * len(cleared))
-        crossed = _grid.cells_above(layers["static"].reshape(-1), obs.free, self._occupied)
+        static = layers["static"].reshape(-1)
+        crossed = _grid.cells_above(static, obs.free, self._occupied)
         if len(crossed):
             self._crossed.frombytes(crossed.astype(np.int64).tobytes())
             self._crossed_scan.extend([scan] * len(crossed))
+        rising = _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied, False)
+        if len(rising):
+            self._rising.frombytes(rising.astype(np.int64).tobytes())
+            self._rising_scan.extend([scan] * len(rising))
 
     def _add_blobs(self, into: array, scan: int, cells: np.ndarray) -> None:
         """Cells (in beam order) in blobs: split where successive ones lie ``blob_gap_m``
@@ -162,6 +171,12 @@ class ChangeRecorder:
         rows, cols = self.grids.world_cells(cells)
         xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
         return xy, cells, np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
+
+    def rising(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cells hit where S did not yet hold them Occupied (nor Free around them), and the
+        scan of each: how a place came into S."""
+        return (np.frombuffer(self._rising, np.int64),
+                np.frombuffer(self._rising_scan, np.int32).astype(np.int64))
 
     def crossed(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
@@ -307,17 +322,29 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
                                        cleared_scans[inside], enough):
             sightings = b[np.isin(b[:, SCAN], episode)]
             t = stamps[episode]
-            if t[-1] - t[0] < config.still_s or len(episode) < config.min_scans:
+            if len(episode) < config.min_scans or not _steady(t, stamps, config.still_s):
                 continue
             ex0, ey0 = sightings[:, X0].min(), sightings[:, Y0].min()
             ex1, ey1 = sightings[:, X1].max(), sightings[:, Y1].max()
-            place = ((ex0 + ex1) / 2, (ey0 + ey1) / 2, (ex1 - ex0 + res) * (ey1 - ey0 + res))
+            place = (float(ex0 + ex1) / 2, float(ey0 + ey1) / 2,
+                     float((ex1 - ex0 + res) * (ey1 - ey0 + res)))
             out.append(ChangeEvent(0, "appeared", float(t[0]), float(t[-1]), *place,
                                    len(episode)))
             if gone is not None:
                 out.append(ChangeEvent(0, "vacated", float(stamps[gone[0]]),
                                        float(stamps[gone[-1]]), *place, len(gone)))
     return out
+
+
+def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
+    """Whether some ``still_s`` seconds of the log saw the object in at least half their
+    scans (stamps sorted): an object standing there, not a few stray returns (a beam
+    split on an edge) that come back now and then."""
+    end = sighted + still_s
+    ok = end <= stamps[-1]
+    count = np.searchsorted(sighted, end, side="right") - np.arange(len(sighted))
+    scans = np.searchsorted(stamps, end, side="right") - np.searchsorted(stamps, sighted)
+    return bool(np.any(ok & (2 * count >= scans)))
 
 
 def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: float
@@ -367,6 +394,12 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     first_crossed = np.full(len(unique), np.iinfo(np.int64).max)
     np.minimum.at(first_crossed, which, scans)
     first_crossed = first_crossed[gone]
+    rising, rising_scans = recorder.rising()
+    entered = np.full(len(unique), np.iinfo(np.int64).max)  # first hit that raised it
+    at = np.searchsorted(unique, rising)
+    known = (at < len(unique)) & (unique[np.minimum(at, len(unique) - 1)] == rising)
+    np.minimum.at(entered, at[known], rising_scans[known])
+    entered = entered[gone]
     group_of = np.full(len(unique), -1, np.int64)
     group_of[gone] = groups
     record_group = group_of[which]
@@ -381,6 +414,11 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
         x, y = (cols[members].mean() + 0.5) * res, (rows[members].mean() + 0.5) * res
         # seen gone from when half its cells had been crossed
         first = float(stamps[np.sort(first_crossed[members])[members.sum() // 2]])
+        since = entered[members]
+        since = since[since < len(stamps)]
+        stood = first - float(stamps[int(np.median(since))]) if len(since) else math.inf
+        if stood < config.still_s:
+            continue  # (a mover that had stood in a place not yet mapped)
         last = float(stamps[seen[-1]])
         near = np.abs(trail[:, 0] - first) <= config.track_gap_s
         if np.any(np.hypot(trail[near, 1] - x, trail[near, 2] - y) <= config.track_gate_m):
