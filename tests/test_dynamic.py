@@ -135,7 +135,13 @@ def _simulated(world: str, tmp_path, noise: float, duration: float = 600.0, rate
 
 
 def _score(world: str, tmp_path, noise: float, config: Config):
-    from dynslam_cli.evaluate import MapThresholds, score_events, score_run, snapshots_at
+    from dynslam_cli.evaluate import (
+        MapThresholds,
+        score_changes,
+        score_events,
+        score_run,
+        snapshots_at,
+    )
 
     source, reader, truth = _simulated(world, tmp_path, noise)
     times = [e["time"] for e in truth["events"]]
@@ -143,8 +149,23 @@ def _score(world: str, tmp_path, noise: float, config: Config):
     source.close()
     th = MapThresholds(0.1, 0.9)
     final = score_run(result.static, result.dynamic, result.trajectory, [], truth, th)
+    final["changes"] = score_changes(result.changes, result.trajectory, truth)
     events = score_events(snaps, truth, th)
     return final, events, truth
+
+
+def _assert_change_events(changes: dict, truth: dict) -> None:
+    """changes.csv as the issue asks: every box arrival and departure the map could know
+    reported (recall), nothing else reported as one (precision), walkers only as moving."""
+    for kind in ("appeared", "vacated"):
+        c = changes[kind]
+        if truth["events"]:
+            assert c["true"] >= 1 and c["recall"] >= 0.95, (kind, c)
+        assert c["reported"] == 0 or c["precision"] >= 0.95, (kind, c)
+    m = changes["moving"]
+    assert m["appeared_on_walkers"] == 0
+    if any(o["kind"] == "walker" for o in truth["objects"].values()):
+        assert m["reported"] >= 10 and m["on_walkers"] >= 0.95 * m["reported"], m
 
 
 ODOMETRY_ONLY = Config(ekf=STILL)
@@ -162,6 +183,7 @@ def test_dynamic_mapping_with_true_odometry(world, tmp_path):
         assert moved["of"] >= 0.5 * len(truth["events"])  # most moves were seen afterwards
         assert moved["rate"] == 1.0
         assert vacated["of"] >= 1 and vacated["rate"] == 1.0
+    _assert_change_events(final["changes"], truth)
 
 
 def test_ordinary_grid_fails_where_dynamic_mapping_works(tmp_path):
@@ -192,6 +214,7 @@ def test_slam_with_drifting_odometry(world, tmp_path):
     if truth["events"]:
         assert moved["rate"] == 1.0 and vacated["rate"] == 1.0
     assert final["landmarks"]["static_on_movers"] == 0
+    _assert_change_events(final["changes"], truth)
 
 
 def test_ablations_are_worse(tmp_path):

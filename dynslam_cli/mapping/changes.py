@@ -241,6 +241,8 @@ def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
     blob a scan per track."""
     tracks: list[list[int]] = []
     active: list[int] = []  # tracks that may continue
+    if not len(blobs):
+        return []
     scan_starts = np.flatnonzero(np.diff(blobs[:, SCAN], prepend=-1.0) != 0)
     for s0, s1 in zip(scan_starts, [*scan_starts[1:], len(blobs)], strict=True):
         now = stamps[int(blobs[s0, SCAN])]

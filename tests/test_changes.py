@@ -1,0 +1,111 @@
+"""Change events (changes.csv): what a user is told changed, told as a story scan by scan,
+and on a real log with people walking."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import numpy as np
+import pytest
+
+from dynslam_cli.config import Config, load_config
+from dynslam_cli.errors import ConfigError
+from dynslam_cli.localization.cornerslam import EkfConfig
+from dynslam_cli.mapping.changes import ChangeEvent
+from dynslam_cli.pipeline import DynamicSlam
+from dynslam_cli.types import Pose2D, Scan
+from dynslam_formats.changes import HEADER, read_changes, write_changes
+
+ANGLES = np.linspace(-0.3, 0.3, 61)  # 0.01 rad apart
+RATE = 10.0  # scans a second
+
+
+def _scan(t: float, box: bool = False, walker_at: float | None = None) -> Scan:
+    """A still robot at the origin before a wall 6 m off; a 0.6 m box 3 m ahead; a walker
+    (three beams wide) 4 m off at bearing ``walker_at``."""
+    ranges = np.full(len(ANGLES), 6.0)
+    if box:
+        ranges[np.abs(ANGLES) <= 0.1] = 3.0
+    if walker_at is not None:
+        ranges[np.abs(ANGLES - walker_at) <= 0.011] = 4.0
+    return Scan(stamp=t, ranges=ranges, angles=ANGLES, max_range=8.0, odom=Pose2D())
+
+
+def _story() -> list[ChangeEvent]:
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(400):
+        t = k / RATE
+        box = t < 5 or 15 <= t < 25  # stands, is taken away, is put back, is taken again
+        walker = -0.25 + 0.5 * (t - 30) / 4 if 30 <= t < 34 else None  # 0.5 m/s across
+        slam.step(_scan(t, box, walker))
+    return slam.result().changes
+
+
+def test_a_box_taken_away_put_back_and_a_walker_are_told_as_events():
+    events = _story()
+    assert [e.kind for e in events] == ["vacated", "appeared", "vacated", "moving"]
+    first, back, gone, walker = events
+    # The box stood on a place never seen empty, so it was static (Table 1): when it went,
+    # S lost it; put back where S is Free, it appeared; taken again, its place was vacated.
+    assert 5.0 <= first.first_s <= 5.5
+    assert 15.0 <= back.first_s <= 15.2 and 24.8 <= back.last_s < 25.0
+    assert 25.0 <= gone.first_s <= 25.3
+    for e in (first, back, gone):
+        assert abs(e.x - 3.0) <= 0.1 and abs(e.y) <= 0.1
+        assert e.scans >= 1
+    assert back.scans == 100  # seen in every scan of its ten seconds
+    assert 30.0 <= walker.first_s and walker.last_s < 34.0
+    assert [e.id for e in events] == [1, 2, 3, 4]
+
+
+def test_a_walker_is_never_an_object_that_appeared():
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(300):
+        t = k / RATE
+        slam.step(_scan(t, walker_at=-0.25 + 0.5 * (t % 4) / 4 if t >= 5 else None))
+    kinds = [e.kind for e in slam.result().changes]
+    assert kinds and set(kinds) == {"moving"}
+
+
+def test_without_the_dynamic_map_there_are_no_events():
+    config = load_config(overrides={"ekf": {"localization": "odometry"},
+                                    "dynamic": {"enabled": False}})
+    slam = DynamicSlam(config)
+    for k in range(300):
+        slam.step(_scan(k / RATE, box=k < 50))
+    assert slam.result().changes == []
+
+
+def test_changes_csv_round_trip():
+    events = [ChangeEvent(1, "appeared", 10.0, 12.5, 1.25, -3.5, 0.36, 25, (4, 17)),
+              ChangeEvent(2, "moving", 11.0, 13.0, 0.0, 0.125, 0.04, 20)]
+    out = io.StringIO()
+    write_changes(out, events)
+    rows = list(csv.reader(io.StringIO(out.getvalue())))
+    assert tuple(rows[0]) == HEADER
+    assert rows[1][-1] == "4 17" and rows[2][-1] == ""
+    assert read_changes(io.StringIO(out.getvalue())) == events
+
+
+def test_change_thresholds_are_checked():
+    with pytest.raises(ConfigError, match="changes"):
+        load_config(overrides={"changes": {"min_scans": 0}})
+    with pytest.raises(ConfigError, match="changes"):
+        load_config(overrides={"changes": {"track_gate_m": -1.0}})
+
+
+def test_people_walking_on_a_real_log_are_moving_tracks(datasets, tmp_path, cli):
+    """leg_tracker's bag: people walking past a laser; they are tracks, and no wall
+    'appeared'."""
+    out = tmp_path / "out"
+    result = cli("process", datasets / "rosbag1" / "people-walking-rear.bag", "-o", out, "-q")
+    assert result.exit_code == 0, result.output
+    with open(out / "changes.csv", encoding="utf-8") as f:
+        events = read_changes(f)
+    kinds = [e.kind for e in events]
+    assert kinds.count("moving") >= 3 and "appeared" not in kinds
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["changes"]["counts"]["moving"] == kinds.count("moving")
+    assert len(summary["changes"]["events"]) == len(events)
