@@ -56,7 +56,7 @@ def test_a_box_taken_away_put_back_and_a_walker_are_told_as_events():
         assert abs(e.x - 3.0) <= 0.1 and abs(e.y) <= 0.1
         assert e.scans >= 1
     assert back.scans == 100  # seen in every scan of its ten seconds
-    assert 30.0 <= walker.first_s and walker.last_s < 34.0
+    assert walker.first_s >= 30.0 and walker.last_s < 34.0
     assert [e.id for e in events] == [1, 2, 3, 4]
 
 

@@ -376,6 +376,20 @@ def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: fl
     return [e for e in out if len(e[0])]
 
 
+def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
+               ) -> np.ndarray:
+    """For each cell, the last scan before ``before`` (its scan) that hit it while S did not
+    yet hold it Occupied: since when what stood there had stood; -1 if none did."""
+    rising, scans = recorder.rising()
+    span = len(recorder.stamps) + 1
+    keys = np.sort(rising * span + scans)  # by cell, then scan
+    at = np.searchsorted(keys, cells * span + before) - 1
+    found = at >= 0
+    hit = keys[np.maximum(at, 0)]
+    found &= hit // span == cells
+    return np.where(found, hit % span, -1)
+
+
 def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
     """Places S held Occupied, crossed by beams at most ``passes_to_leave`` times each and
     Free at the end, grouped by neighbourhood (cells ``merge_distance_m`` apart): a static
@@ -396,12 +410,7 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     first_crossed = np.full(len(unique), np.iinfo(np.int64).max)
     np.minimum.at(first_crossed, which, scans)
     first_crossed = first_crossed[gone]
-    rising, rising_scans = recorder.rising()
-    entered = np.full(len(unique), np.iinfo(np.int64).max)  # first hit that raised it
-    at = np.searchsorted(unique, rising)
-    known = (at < len(unique)) & (unique[np.minimum(at, len(unique) - 1)] == rising)
-    np.minimum.at(entered, at[known], rising_scans[known])
-    entered = entered[gone]
+    entered = _last_rise(recorder, unique[gone], first_crossed)
     group_of = np.full(len(unique), -1, np.int64)
     group_of[gone] = groups
     record_group = group_of[which]
@@ -417,7 +426,7 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
         # seen gone from when half its cells had been crossed
         first = float(stamps[np.sort(first_crossed[members])[members.sum() // 2]])
         since = entered[members]
-        since = since[since < len(stamps)]
+        since = since[since >= 0]
         stood = first - float(stamps[int(np.median(since))]) if len(since) else math.inf
         if stood < config.still_s:
             continue  # (a mover that had stood in a place not yet mapped)
