@@ -1,5 +1,6 @@
 """Accuracy table: every built-in world, true vs drifting odometry; the full method (S/D),
-the ordinary grid (--no-dynamic) and odometry-only localization (--localization odometry).
+the ordinary grid (--no-dynamic) and odometry-only localization (--localization odometry);
+with the change events (changes.csv) scored.
 
 Runs the real chain (simulate → Carmen log → reader → pipeline), takes map snapshots at every
 relocation (paper Table 4, event by event) and scores with dynslam_cli.evaluate. Prints a
@@ -22,7 +23,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from dynslam_cli.config import Config  # noqa: E402
-from dynslam_cli.evaluate import MapThresholds, score_events, score_run, snapshots_at  # noqa: E402
+from dynslam_cli.evaluate import (  # noqa: E402
+    MapThresholds,
+    score_changes,
+    score_events,
+    score_run,
+    snapshots_at,
+)
 from dynslam_cli.simulate import (  # noqa: E402
     WORLD_NAMES,
     LaserModel,
@@ -60,14 +67,25 @@ def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: 
     final = score_run(result.static, result.dynamic, result.trajectory, result.landmarks,
                       truth, th)
     events = score_events(snaps, truth, th)
+    changes = score_changes(result.changes, result.trajectory, truth)
     return {"world": world, "odometry_noise": noise, "mode": mode, "wall_s": round(wall, 2),
-            **final, "events": events}
+            **final, "events": events, "changes": changes}
 
 
 def fmt(v: object) -> str:
     if v is None:
         return "n/a"
     return f"{v:.4f}" if isinstance(v, float) else str(v)
+
+
+def changes(c: dict) -> tuple[str, str, str]:
+    """changes.csv's scores: right/reported and found/true of appeared and vacated; moving
+    events in the walkers' loops / reported (and appeared on walkers, if any)."""
+    def kind(k: str) -> str:
+        return f"{c[k]['right']}/{c[k]['reported']} {c[k]['found']}/{c[k]['true']}"
+    m = c["moving"]
+    stray = f" ({m['appeared_on_walkers']} appeared on walkers)" if m["appeared_on_walkers"] else ""
+    return kind("appeared"), kind("vacated"), f"{m['on_walkers']}/{m['reported']}{stray}"
 
 
 def main() -> None:
@@ -84,7 +102,8 @@ def main() -> None:
                 for mode in MODES:
                     rows.append(one(world, noise, mode, args.duration, args.rate, Path(d)))
     head = ("world", "odom", "mode", "ATE m", "odo ATE", "S prec", "S recall", "ghost",
-            "D prec", "moved", "det.static", "vacated")
+            "D prec", "moved", "det.static", "vacated", "ch. appeared", "ch. vacated",
+            "ch. moving")
     print(" | ".join(head))
     for r in rows:
         s, dm, ev = r["static_map"], r["dynamic_map"], r["events"]
@@ -94,7 +113,7 @@ def main() -> None:
                           fmt(r["trajectory"]["odometry_ate_rmse_m"]), fmt(s["precision"]),
                           fmt(s["recall"]), fmt(s["ghost_rate"]), fmt(dm["precision"]),
                           f"{mv['detected']}/{mv['of']}", str(mv["detected_static"]),
-                          f"{vc['cleared']}/{vc['of']}")))
+                          f"{vc['cleared']}/{vc['of']}", *changes(r["changes"]))))
     Path(args.out).write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
 
 

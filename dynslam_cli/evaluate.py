@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial import Delaunay
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import ScoreError
@@ -493,6 +492,8 @@ def _in_loops(points: np.ndarray, walkers: dict[str, Any], tolerance_m: float) -
     """Whether each point lies within a walker's loop (its waypoints' hull) or within
     ``tolerance_m`` of its path (less its radius): a track's centre lies inside the curve
     it walked."""
+    from scipy.spatial import Delaunay
+
     inside = np.zeros(len(points), bool)
     if not len(points):
         return inside

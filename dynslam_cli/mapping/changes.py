@@ -25,9 +25,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from dynslam_cli.mapping import _grid
 from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
@@ -141,23 +138,24 @@ class ChangeRecorder:
 
     def _add_blobs(self, into: array, scan: int, cells: np.ndarray) -> None:
         """Cells (in beam order) in blobs: split where successive ones lie ``blob_gap_m``
-        apart, then blobs whose boxes come that close joined again (an object's two faces,
+        apart, then pieces whose boxes come that close joined again (an object's two faces,
         a beam between them ending elsewhere)."""
         rows, cols = self.grids.world_cells(cells)
         xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
         gap = self.config.blob_gap_m
-        label = np.concatenate(([0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T) > gap)))
-        if label[-1] > 0:
-            pieces = range(label[-1] + 1)
-            boxes = np.array([(*xy[label == k].min(0), *xy[label == k].max(0)) for k in pieces])
-            label = _box_groups(boxes, gap + 1e-9)[label]
-        order = np.argsort(label, kind="stable")
-        xy, label = xy[order], label[order]
-        starts = np.flatnonzero(np.diff(label, prepend=-1))
+        starts = np.flatnonzero(np.hypot(*np.diff(xy, axis=0).T) > gap) + 1
+        starts = np.concatenate(([0], starts))
+        low, high = np.minimum.reduceat(xy, starts), np.maximum.reduceat(xy, starts)
+        if len(starts) > 1:
+            label = _join_boxes(np.hstack((low, high)), gap)
+            piece = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(xy))))
+            order = np.argsort(label[piece], kind="stable")
+            xy = xy[order]
+            starts = np.flatnonzero(np.diff(label[piece][order], prepend=-1))
+            low, high = np.minimum.reduceat(xy, starts), np.maximum.reduceat(xy, starts)
         count = np.diff(np.append(starts, len(xy)))
         rows_out = np.column_stack((np.full(len(starts), scan), np.add.reduceat(xy, starts)
-                                    / count[:, None], np.minimum.reduceat(xy, starts),
-                                    np.maximum.reduceat(xy, starts), count))
+                                    / count[:, None], low, high, count))
         into.frombytes(rows_out.astype(np.float64).tobytes())
 
     def sightings(self) -> np.ndarray:
@@ -196,15 +194,12 @@ def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, fl
     found = [*moving, *_standing_objects(recorder, still), *_vacated_static(recorder, trail)]
     found.sort(key=lambda e: (e.first_s, e.x, e.y, e.kind))
     places = np.array([(x, y) for _, x, y in landmarks], dtype=np.float64).reshape(-1, 2)
-    tree = cKDTree(places) if len(places) else None
+    ids = np.array([i for i, _, _ in landmarks], dtype=np.int64)
     out = []
     for n, e in enumerate(found, start=1):
-        carried: tuple[int, ...] = ()
-        if tree is not None:
-            near = tree.query_ball_point((e.x, e.y), math.sqrt(e.size_m2) / 2)
-            carried = tuple(sorted(landmarks[k][0] for k in near))
+        near = np.hypot(places[:, 0] - e.x, places[:, 1] - e.y) <= math.sqrt(e.size_m2) / 2
         out.append(ChangeEvent(n, e.kind, e.first_s, e.last_s, e.x, e.y, e.size_m2, e.scans,
-                               carried))
+                               tuple(sorted(ids[near].tolist()))))
     return out
 
 
@@ -239,32 +234,36 @@ def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
     """Tracks (blob indices in time order): each scan's blobs continue the nearest track
     seen within ``gap_s`` whose last blob lies within ``gate``, nearest pairs first; one
     blob a scan per track."""
-    tracks: list[list[int]] = []
-    active: list[int] = []  # tracks that may continue
-    if not len(blobs):
-        return []
+    track = np.empty(len(blobs), np.int64)  # each blob's track
+    last: dict[int, int] = {}  # the last blob of each track that may continue
     scan_starts = np.flatnonzero(np.diff(blobs[:, SCAN], prepend=-1.0) != 0)
-    for s0, s1 in zip(scan_starts, [*scan_starts[1:], len(blobs)], strict=True):
+    ends = np.append(scan_starts[1:], len(blobs))
+    made = 0
+    for s0, s1 in zip(scan_starts.tolist(), ends.tolist(), strict=True):
         now = stamps[int(blobs[s0, SCAN])]
-        active = [k for k in active if now - stamps[int(blobs[tracks[k][-1], SCAN])] <= gap_s]
+        last = {k: b for k, b in last.items() if now - stamps[int(blobs[b, SCAN])] <= gap_s}
         taken = np.zeros(s1 - s0, bool)
-        if active:
-            last = blobs[[tracks[k][-1] for k in active], CX:CY + 1]
-            d = np.hypot(*(blobs[s0:s1, None, CX:CY + 1] - last[None]).transpose(2, 0, 1))
+        if last:
+            ids = list(last)
+            ends_xy = blobs[[last[k] for k in ids], CX:CY + 1]
+            d = np.hypot(*(blobs[s0:s1, None, CX:CY + 1] - ends_xy[None]).transpose(2, 0, 1))
             extended = set()
-            for flat in np.argsort(d, axis=None, kind="stable"):
-                i, j = divmod(int(flat), len(active))
+            for flat in np.argsort(d, axis=None, kind="stable").tolist():
+                i, j = divmod(flat, len(ids))
                 if d[i, j] > gate:
                     break
                 if taken[i] or j in extended:
                     continue
-                tracks[active[j]].append(s0 + i)
+                track[s0 + i] = ids[j]
+                last[ids[j]] = s0 + i
                 taken[i] = True
                 extended.add(j)
-        for i in np.flatnonzero(~taken):
-            active.append(len(tracks))
-            tracks.append([s0 + int(i)])
-    return [np.asarray(t) for t in tracks]
+        for i in np.flatnonzero(~taken).tolist():
+            track[s0 + i] = made
+            last[made] = s0 + i
+            made += 1
+    order = np.argsort(track, kind="stable")  # (blobs in time order within each track)
+    return np.split(order, np.flatnonzero(np.diff(track[order])) + 1) if len(blobs) else []
 
 
 def _median_speed(t: np.ndarray, places: np.ndarray, window_s: float) -> float:
@@ -280,24 +279,55 @@ def _median_speed(t: np.ndarray, places: np.ndarray, window_s: float) -> float:
 
 
 def _neighbour_groups(points: np.ndarray, within: float) -> np.ndarray:
-    """Group label of each point: points closer than ``within`` are in one group."""
-    pairs = cKDTree(points).query_pairs(within, output_type="ndarray")
-    n = len(points)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
+    """Group label of each point: points less than ``within`` apart in x and in y are in
+    one group."""
+    return _box_groups(np.hstack((points, points)), within)
+
+
+def _join_boxes(boxes: np.ndarray, within: float) -> np.ndarray:
+    """:func:`_box_groups` for the few pieces of one scan: the smallest index of its group
+    for each box (boxes within ``within`` of each other, or chained so), by spreading the
+    smallest label over the table of near pairs (a few passes)."""
+    near = np.maximum(boxes[:, None, :2] - boxes[None, :, 2:],
+                      boxes[None, :, :2] - boxes[:, None, 2:]).max(-1) <= within
+    label = np.arange(len(boxes))
+    while True:
+        spread = np.where(near, label[None, :], len(boxes)).min(1)
+        if np.array_equal(spread, label):
+            return label
+        label = spread
 
 
 def _box_groups(boxes: np.ndarray, within: float) -> np.ndarray:
     """Group label of each box (x0, y0, x1, y1): boxes less than ``within`` apart are in
-    one group (pairs found by their centres, so no n × n table)."""
-    centres = (boxes[:, :2] + boxes[:, 2:]) / 2
-    reach = np.hypot(*(boxes[:, 2:] - boxes[:, :2]).T).max() + within
-    pairs = cKDTree(centres).query_pairs(reach, output_type="ndarray")
-    a, b = boxes[pairs[:, 0]], boxes[pairs[:, 1]]
-    near = np.maximum(a[:, :2] - b[:, 2:], b[:, :2] - a[:, 2:]).max(-1) < within
+    one group. Pairs by a sweep along x: each box against those that start within its
+    x extent (no n × n table)."""
     n = len(boxes)
-    graph = coo_matrix((np.ones(near.sum()), (pairs[near, 0], pairs[near, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
+    order = np.argsort(boxes[:, 0], kind="stable")
+    b = boxes[order]
+    reach = np.searchsorted(b[:, 0], b[:, 2] + within, side="right")
+    count = np.maximum(reach - np.arange(1, n + 1), 0)
+    first = np.repeat(np.arange(n), count)
+    second = first + 1 + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    near = np.maximum(b[first, 1] - b[second, 3], b[second, 1] - b[first, 3]) < within
+    return _components(n, order[first[near]], order[second[near]])
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components of n nodes joined by the edges (a[k], b[k]): each node's
+    label, 0, 1, ... in the order of the components' smallest nodes (labels spread along
+    the edges, then follow each other, until nothing changes). scipy.sparse.csgraph would do; importing
+    it costs a process 30 MB."""
+    label = np.arange(n)
+    while True:
+        low = np.minimum(label[a], label[b])
+        before = label.copy()
+        np.minimum.at(label, a, low)
+        np.minimum.at(label, b, low)
+        while not np.array_equal(label, label[label]):
+            label = label[label]
+        if np.array_equal(label, before):
+            return np.unique(label, return_inverse=True)[1].reshape(-1)
 
 
 def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list[ChangeEvent]:
