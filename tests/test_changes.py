@@ -109,3 +109,13 @@ def test_people_walking_on_a_real_log_are_moving_tracks(datasets, tmp_path, cli)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["changes"]["counts"]["moving"] == kinds.count("moving")
     assert len(summary["changes"]["events"]) == len(events)
+
+
+def test_compacting_the_evidence_changes_no_event(monkeypatch):
+    """Memory follows the cells, not the log's length: letting go of what can no longer
+    make an event, however often, gives the same events."""
+    from dynslam_cli.mapping import changes
+
+    whole = _story()
+    monkeypatch.setattr(changes, "COMPACT_AT", 50)
+    assert _story() == whole

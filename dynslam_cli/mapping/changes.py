@@ -81,6 +81,8 @@ class ChangeEvent:
     landmarks: tuple[int, ...] = ()
 
 
+COMPACT_AT = 1 << 18  # records of crossed and rising cells kept before compacting them
+
 # A blob's record: its scan's index, centroid x y, bounding box x0 y0 x1 y1, cell count.
 BLOB_FIELDS = 8
 SCAN, CX, CY, X0, Y0, X1, Y1, CELLS = range(BLOB_FIELDS)
@@ -112,6 +114,10 @@ class ChangeRecorder:
         self._crossed_scan = array("i")  # ... and the scan that crossed it
         self._rising = array("q")  # flat index of each cell hit where S is not Occupied ...
         self._rising_scan = array("i")  # ... (but not Free around it) and the scan
+        self.contested = np.zeros(0, np.int64)
+        """Cells crossed more often than ``passes_to_leave`` (sorted): never a place
+        vacated, so their records are let go (:meth:`compact`)."""
+        self._compact_at = COMPACT_AT
 
     def record(self, stamp: float, obs: Observation, hit_on_free: np.ndarray) -> None:
         """One scan's evidence: its observation (before the maps are updated with it) and
@@ -135,6 +141,34 @@ class ChangeRecorder:
         if len(rising):
             self._rising.frombytes(rising.astype(np.int64).tobytes())
             self._rising_scan.extend([scan] * len(rising))
+        if len(self._crossed) + len(self._rising) >= self._compact_at:
+            self.compact()
+
+    def compact(self) -> None:
+        """Let go of what can no longer make an event, so memory follows the cells, not the
+        length of the log: the crossings of contested cells (remembered as such), and of
+        each cell's rises all but the last before its first crossing."""
+        cells, scans = self.crossed()
+        unique, times = np.unique(cells, return_counts=True)
+        self.contested = np.union1d(self.contested, unique[times > self.passes_to_leave])
+        keep = ~np.isin(cells, self.contested)
+        cells, scans = cells[keep], scans[keep]
+        unique = np.unique(cells)
+        first = np.full(len(unique), np.iinfo(np.int64).max)
+        np.minimum.at(first, np.searchsorted(unique, cells), scans)
+        rising, rising_scans = self.rising()
+        at = np.minimum(np.searchsorted(unique, rising), max(len(unique) - 1, 0))
+        limit = (np.where(unique[at] == rising, first[at], np.iinfo(np.int64).max)
+                 if len(unique) else np.full(len(rising), np.iinfo(np.int64).max))
+        ok = (rising_scans < limit) & ~np.isin(rising, self.contested)
+        rising, rising_scans = rising[ok], rising_scans[ok]
+        order = np.lexsort((rising_scans, rising))
+        last = order[np.append(rising[order][1:] != rising[order][:-1], True)]
+        self._crossed, self._crossed_scan = array("q", cells.tobytes()), array("i")
+        self._crossed_scan.frombytes(scans.astype(np.int32).tobytes())
+        self._rising, self._rising_scan = array("q", rising[last].tobytes()), array("i")
+        self._rising_scan.frombytes(rising_scans[last].astype(np.int32).tobytes())
+        self._compact_at = max(COMPACT_AT, 2 * (len(self._crossed) + len(self._rising)))
 
     def _add_blobs(self, into: array, scan: int, cells: np.ndarray) -> None:
         """Cells (in beam order) in blobs: split where successive ones lie ``blob_gap_m``
@@ -316,8 +350,8 @@ def _box_groups(boxes: np.ndarray, within: float) -> np.ndarray:
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Connected components of n nodes joined by the edges (a[k], b[k]): each node's
     label, 0, 1, ... in the order of the components' smallest nodes (labels spread along
-    the edges, then follow each other, until nothing changes). scipy.sparse.csgraph would do; importing
-    it costs a process 30 MB."""
+    the edges, then follow each other, until nothing changes). scipy.sparse.csgraph would
+    do; importing it costs a process 30 MB."""
     label = np.arange(n)
     while True:
         low = np.minimum(label[a], label[b])
@@ -426,12 +460,13 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     object gone, seen so when half its cells had been crossed.
     A place a mover was seen beside when it went is that mover's trail, not an event."""
     config, grids = recorder.config, recorder.grids
+    recorder.compact()
     cells, scans = recorder.crossed()
     if not len(cells):
         return []
     unique, which, times = np.unique(cells, return_inverse=True, return_counts=True)
     gone = ((grids.layers["static"].reshape(-1)[unique] < recorder.free_limit)
-            & (times <= recorder.passes_to_leave))
+            & (times <= recorder.passes_to_leave))  # (compacted: no contested cell left)
     if not gone.any():
         return []
     rows, cols = grids.world_cells(unique[gone])
