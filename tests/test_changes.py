@@ -119,3 +119,10 @@ def test_compacting_the_evidence_changes_no_event(monkeypatch):
     whole = _story()
     monkeypatch.setattr(changes, "COMPACT_AT", 50)
     assert _story() == whole
+
+
+def test_a_log_where_nothing_changes_has_no_events():
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(100):
+        slam.step(_scan(k / RATE))
+    assert slam.result().changes == []

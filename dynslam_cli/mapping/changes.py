@@ -268,6 +268,8 @@ def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
     """Tracks (blob indices in time order): each scan's blobs continue the nearest track
     seen within ``gap_s`` whose last blob lies within ``gate``, nearest pairs first; one
     blob a scan per track."""
+    if not len(blobs):
+        return []
     track = np.empty(len(blobs), np.int64)  # each blob's track
     last: dict[int, int] = {}  # the last blob of each track that may continue
     scan_starts = np.flatnonzero(np.diff(blobs[:, SCAN], prepend=-1.0) != 0)
@@ -297,7 +299,7 @@ def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
             last[made] = s0 + i
             made += 1
     order = np.argsort(track, kind="stable")  # (blobs in time order within each track)
-    return np.split(order, np.flatnonzero(np.diff(track[order])) + 1) if len(blobs) else []
+    return np.split(order, np.flatnonzero(np.diff(track[order])) + 1)
 
 
 def _median_speed(t: np.ndarray, places: np.ndarray, window_s: float) -> float:
