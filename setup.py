@@ -6,7 +6,7 @@ from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 from setuptools.errors import CompileError, ExecError, LinkError, PlatformError
 
-KERNELS = ("mapping/_grid", "localization/_match", "localization/_corners",
+KERNELS = ("mapping/_grid", "mapping/_changes", "localization/_match", "localization/_corners",
            "localization/_loops", "localization/_graph")
 
 NO_COMPILER = (

@@ -126,3 +126,34 @@ def test_a_log_where_nothing_changes_has_no_events():
     for k in range(100):
         slam.step(_scan(k / RATE))
     assert slam.result().changes == []
+
+
+def test_an_objects_two_faces_are_one_blob_and_a_far_one_another():
+    """A scan's sightings: two faces of one box with a beam between them that ended
+    elsewhere are one object; a thing a metre away is a second one."""
+    from dynslam_cli.mapping import _changes
+    side, res = 4, 0.05  # one 4 × 4 tile at the world origin: flat index = row · 4 + col
+    rows, cols = np.zeros(1, np.int32), np.zeros(1, np.int32)
+    cells = np.array([0, 1, 15, 2, 3], np.intp)  # beam order: a face, a beam 0.15 m off, a face
+    blobs = _changes.scan_blobs(cells, rows, cols, side, res, 0.12, 7.0)
+    assert blobs[:, 0].tolist() == [7.0, 7.0] and blobs[:, 7].tolist() == [4, 1]
+    assert blobs[0, 1:].tolist() == pytest.approx([0.1, 0.025, 0.025, 0.025, 0.175, 0.025, 4])
+    one = np.array([0, 1], np.intp)
+    far = _changes.scan_blobs(one, rows, cols, side, 1.0, 0.5, 0.0)  # cells 1 m apart
+    assert far.shape == (2, 8)
+    assert far[:, 1:3].tolist() == [[0.5, 0.5], [1.5, 0.5]]  # cell centres, x then y
+
+
+def test_tracks_take_the_nearest_blob_and_end_when_unseen():
+    """Two walkers side by side stay two tracks (each blob continues the nearer one); a
+    track unseen for longer than the gap ends, and a blob there later starts another."""
+    from dynslam_cli.mapping import _changes
+
+    def blob(scan: int, x: float, y: float) -> list[float]:
+        return [scan, x, y, x, y, x, y, 1]
+    blobs = np.array([blob(0, 0.0, 0.0), blob(0, 0.4, 0.0),
+                      blob(1, 0.45, 0.1), blob(1, 0.05, 0.1),  # (listed in the other order)
+                      blob(5, 0.05, 0.2)])
+    stamps = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 2.0])
+    track = _changes.link_tracks(blobs, stamps, 0.5, 1.0)
+    assert track.tolist() == [0, 1, 1, 0, 2]

@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dynslam_cli.mapping import _grid
-from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
+from dynslam_cli.mapping import _changes, _grid
+from dynslam_cli.mapping.grid import TILE, GridStack, Observation, logit, steps
 
 if TYPE_CHECKING:
     from dynslam_cli.config import Config
@@ -124,23 +124,19 @@ class ChangeRecorder:
         which of its hits fell where S^{t-1} was Free (bool per hit, in beam order)."""
         scan = len(self.stamps)
         self.stamps.append(stamp)
+        grids = self.grids
         if hit_on_free.any():
-            self._add_blobs(self._sightings, scan, obs.hit[hit_on_free])
-        layers = self.grids.layers
-        if "dynamic" in layers:
-            cleared = _grid.cells_above(layers["dynamic"].reshape(-1), obs.free, self._occupied)
-            if len(cleared):
-                self._cleared.frombytes(cleared.astype(np.int64).tobytes())
-                self._cleared_scan.extend([scan] * len(cleared))
-        static = layers["static"].reshape(-1)
-        crossed = _grid.cells_above(static, obs.free, self._occupied)
-        if len(crossed):
-            self._crossed.frombytes(crossed.astype(np.int64).tobytes())
-            self._crossed_scan.extend([scan] * len(crossed))
-        rising = _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied, False)
-        if len(rising):
-            self._rising.frombytes(rising.astype(np.int64).tobytes())
-            self._rising_scan.extend([scan] * len(rising))
+            self._sightings.frombytes(_changes.scan_blobs(
+                obs.hit[hit_on_free], grids.tile_rows, grids.tile_cols, TILE,
+                grids.resolution, self.config.blob_gap_m, scan).tobytes())
+        static = grids.layers["static"].reshape(-1)
+        if "dynamic" in grids.layers:
+            _add(self._cleared, self._cleared_scan, scan, _grid.cells_above(
+                grids.layers["dynamic"].reshape(-1), obs.free, self._occupied))
+        _add(self._crossed, self._crossed_scan, scan,
+             _grid.cells_above(static, obs.free, self._occupied))
+        _add(self._rising, self._rising_scan, scan,
+             _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied, False))
         if len(self._crossed) + len(self._rising) >= self._compact_at:
             self.compact()
 
@@ -170,28 +166,6 @@ class ChangeRecorder:
         self._rising_scan.frombytes(rising_scans[last].astype(np.int32).tobytes())
         self._compact_at = max(COMPACT_AT, 2 * (len(self._crossed) + len(self._rising)))
 
-    def _add_blobs(self, into: array, scan: int, cells: np.ndarray) -> None:
-        """Cells (in beam order) in blobs: split where successive ones lie ``blob_gap_m``
-        apart, then pieces whose boxes come that close joined again (an object's two faces,
-        a beam between them ending elsewhere)."""
-        rows, cols = self.grids.world_cells(cells)
-        xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
-        gap = self.config.blob_gap_m
-        starts = np.flatnonzero(np.hypot(*np.diff(xy, axis=0).T) > gap) + 1
-        starts = np.concatenate(([0], starts))
-        low, high = np.minimum.reduceat(xy, starts), np.maximum.reduceat(xy, starts)
-        if len(starts) > 1:
-            label = _join_boxes(np.hstack((low, high)), gap)
-            piece = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(xy))))
-            order = np.argsort(label[piece], kind="stable")
-            xy = xy[order]
-            starts = np.flatnonzero(np.diff(label[piece][order], prepend=-1))
-            low, high = np.minimum.reduceat(xy, starts), np.maximum.reduceat(xy, starts)
-        count = np.diff(np.append(starts, len(xy)))
-        rows_out = np.column_stack((np.full(len(starts), scan), np.add.reduceat(xy, starts)
-                                    / count[:, None], low, high, count))
-        into.frombytes(rows_out.astype(np.float64).tobytes())
-
     def sightings(self) -> np.ndarray:
         """Every sighting (N × BLOB_FIELDS), in scan order."""
         return np.frombuffer(self._sightings, np.float64).reshape(-1, BLOB_FIELDS)
@@ -214,6 +188,13 @@ class ChangeRecorder:
         """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
         return (np.frombuffer(self._crossed, np.int64),
                 np.frombuffer(self._crossed_scan, np.int32).astype(np.int64))
+
+
+def _add(cells: array, scans: array, scan: int, new: np.ndarray) -> None:
+    """Cells (flat indices) a scan recorded, appended with its index."""
+    if len(new):
+        cells.frombytes(new.astype(np.int64, copy=False).tobytes())
+        scans.frombytes(np.full(len(new), scan, np.int32).tobytes())
 
 
 def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, float]]
@@ -270,34 +251,7 @@ def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
     blob a scan per track."""
     if not len(blobs):
         return []
-    track = np.empty(len(blobs), np.int64)  # each blob's track
-    last: dict[int, int] = {}  # the last blob of each track that may continue
-    scan_starts = np.flatnonzero(np.diff(blobs[:, SCAN], prepend=-1.0) != 0)
-    ends = np.append(scan_starts[1:], len(blobs))
-    made = 0
-    for s0, s1 in zip(scan_starts.tolist(), ends.tolist(), strict=True):
-        now = stamps[int(blobs[s0, SCAN])]
-        last = {k: b for k, b in last.items() if now - stamps[int(blobs[b, SCAN])] <= gap_s}
-        taken = np.zeros(s1 - s0, bool)
-        if last:
-            ids = list(last)
-            ends_xy = blobs[[last[k] for k in ids], CX:CY + 1]
-            d = np.hypot(*(blobs[s0:s1, None, CX:CY + 1] - ends_xy[None]).transpose(2, 0, 1))
-            extended = set()
-            for flat in np.argsort(d, axis=None, kind="stable").tolist():
-                i, j = divmod(flat, len(ids))
-                if d[i, j] > gate:
-                    break
-                if taken[i] or j in extended:
-                    continue
-                track[s0 + i] = ids[j]
-                last[ids[j]] = s0 + i
-                taken[i] = True
-                extended.add(j)
-        for i in np.flatnonzero(~taken).tolist():
-            track[s0 + i] = made
-            last[made] = s0 + i
-            made += 1
+    track = _changes.link_tracks(blobs, stamps, gate, gap_s)
     order = np.argsort(track, kind="stable")  # (blobs in time order within each track)
     return np.split(order, np.flatnonzero(np.diff(track[order])) + 1)
 
@@ -318,20 +272,6 @@ def _neighbour_groups(points: np.ndarray, within: float) -> np.ndarray:
     """Group label of each point: points less than ``within`` apart in x and in y are in
     one group."""
     return _box_groups(np.hstack((points, points)), within)
-
-
-def _join_boxes(boxes: np.ndarray, within: float) -> np.ndarray:
-    """:func:`_box_groups` for the few pieces of one scan: the smallest index of its group
-    for each box (boxes within ``within`` of each other, or chained so), by spreading the
-    smallest label over the table of near pairs (a few passes)."""
-    near = np.maximum(boxes[:, None, :2] - boxes[None, :, 2:],
-                      boxes[None, :, :2] - boxes[:, None, 2:]).max(-1) <= within
-    label = np.arange(len(boxes))
-    while True:
-        spread = np.where(near, label[None, :], len(boxes)).min(1)
-        if np.array_equal(spread, label):
-            return label
-        label = spread
 
 
 def _box_groups(boxes: np.ndarray, within: float) -> np.ndarray:
@@ -425,21 +365,40 @@ def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: fl
     order = np.argsort(scans, kind="stable")
     cells, scans = cells[order], scans[order]
     cut = np.searchsorted(seen, scans, side="right")  # sightings up to each clearing
+    bounds = np.flatnonzero(np.diff(cut, prepend=-1, append=-1))  # (runs of one gap)
+    segment = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    earlier = _earlier_segment(cells, segment)
+    unseen = ~np.isin(scans, seen)
     out: list[tuple[np.ndarray, np.ndarray | None]] = []
-    start, flickered = 0, set()
-    for gap in np.unique(cut[cut > 0]):
-        here = cut == gap
-        fresh = ~np.isin(cells[here], list(flickered)) & ~np.isin(scans[here], seen)
-        new = np.unique(cells[here][fresh], return_index=True)[1]
+    start, since = 0, -1  # (a cell cleared in a segment after ``since`` flickers)
+    for g, (a, b) in enumerate(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)):
+        gap = int(cut[a])
+        if gap == 0:
+            since = g
+            continue
+        fresh = unseen[a:b] & (earlier[a:b] <= since)
+        new = np.unique(cells[a:b][fresh], return_index=True)[1]
         if len(new) >= enough:
             reached = np.sort(new)[math.ceil(enough) - 1]
-            gone = np.unique(scans[here][fresh][reached:])
+            gone = np.unique(scans[a:b][fresh][reached:])
             out.append((seen[start:gap], gone))
-            start, flickered = gap, set()
-        else:
-            flickered.update(cells[here].tolist())
+            start, since = gap, g
     out.append((seen[start:], None))
     return [e for e in out if len(e[0])]
+
+
+def _earlier_segment(cells: np.ndarray, segment: np.ndarray) -> np.ndarray:
+    """For each entry, the last segment before its own (``segment`` sorted) that holds the
+    same cell; -1 if none does."""
+    order = np.lexsort((segment, cells))
+    c, s = cells[order], segment[order]
+    run = np.flatnonzero(np.diff(c, prepend=-1) | np.diff(s, prepend=-1))  # (cell, segment)
+    before = np.full(len(run), -1)
+    same = (run > 0) & (c[np.maximum(run - 1, 0)] == c[run])
+    before[same] = s[run[same] - 1]
+    out = np.empty(len(cells), np.int64)
+    out[order] = np.repeat(before, np.diff(np.append(run, len(c))))
+    return out
 
 
 def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
