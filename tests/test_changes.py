@@ -132,17 +132,15 @@ def test_an_objects_two_faces_are_one_blob_and_a_far_one_another():
     """A scan's sightings: two faces of one box with a beam between them that ended
     elsewhere are one object; a thing a metre away is a second one."""
     from dynslam_cli.mapping import _changes
-    side, res = 4, 0.05  # one 4 × 4 tile at the world origin: flat index = row · 4 + col
-    rows, cols = np.zeros(1, np.int32), np.zeros(1, np.int32)
-    cells = np.array([0, 1, 15, 2, 3], np.intp)  # beam order: a face, a beam 0.15 m off, a face
-    blobs = _changes.scan_blobs(cells, rows, cols, side, res, 0.12, 7.0)
+    row = [(0.025, 0.025), (0.075, 0.025)]  # cell centres (0.05 m cells), in beam order:
+    other = [(0.125, 0.025), (0.175, 0.025)]  # a face, a beam 0.15 m off, a face
+    centres = np.array([*row, (0.175, 0.175), *other])
+    blobs = _changes.scan_blobs(centres, 0.12, 7.0)
     assert blobs[:, 0].tolist() == [7.0, 7.0] and blobs[:, 7].tolist() == [4, 1]
     assert blobs[0, 1:].tolist() == pytest.approx([0.1, 0.025, 0.025, 0.025, 0.175, 0.025, 4])
-    one = np.array([0, 1], np.intp)
-    far = _changes.scan_blobs(one, rows, cols, side, 1.0, 0.5, 0.0)  # cells 1 m apart
+    far = _changes.scan_blobs(np.array([(0.5, 0.5), (1.5, 0.5)]), 0.5, 0.0)  # 1 m apart
     assert far.shape == (2, 8)
-    assert far[:, 1:3].tolist() == [[0.5, 0.5], [1.5, 0.5]]  # cell centres, x then y
-
+    assert far[:, 1:3].tolist() == [[0.5, 0.5], [1.5, 0.5]]  # their centroids, x then y
 
 def test_tracks_take_the_nearest_blob_and_end_when_unseen():
     """Two walkers side by side stay two tracks (each blob continues the nearer one); a

@@ -1,6 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 # cython: initializedcheck=False
-"""Change events' inner loop: one scan's sightings cut into blobs.
+"""Change events' inner loops: one scan's sightings cut into blobs, and blobs linked into
+tracks.
 
 Compiled by ``pip install`` (setup.py); the algorithm and its documentation live in
 ``dynslam_cli.mapping.changes``. No fast-math: results are the same on every run.
@@ -22,23 +23,14 @@ cdef inline Py_ssize_t root(Py_ssize_t* parent, Py_ssize_t i) noexcept nogil:
     return i
 
 
-def scan_blobs(const Py_ssize_t[::1] cells, const int[::1] tile_rows,
-               const int[::1] tile_cols, Py_ssize_t side, double res, double gap,
-               double scan):
-    """The blobs of one scan's cells (flat indices of a tiled grid whose tiles, ``side``
-    cells square, lie at ``tile_rows``/``tile_cols``; in beam order), as rows of
-    ``changes.BLOB_FIELDS``: the cells' centres cut where successive ones lie more than
+def scan_blobs(const double[:, ::1] xy, double gap, double scan):
+    """The blobs of one scan's sighted cells (their centres, n × 2, in beam order), as
+    rows of ``changes.BLOB_FIELDS``: the cells cut where successive ones lie more than
     ``gap`` apart, then pieces whose boxes come within ``gap`` of each other in x and in y
     (or are chained so) joined again; blobs in the order of their first cell."""
-    cdef Py_ssize_t n = cells.shape[0], p = 0, i, j, a, b, k, g = 0, tile, place
+    cdef Py_ssize_t n = xy.shape[0], p = 0, i, j, a, b, k, g = 0
     if n == 0:
         return np.zeros((0, FIELDS))
-    xy_ = np.empty((n, 2))
-    cdef double[:, ::1] xy = xy_
-    for i in range(n):  # (world column, row of each cell's centre, in metres)
-        tile, place = cells[i] // (side * side), cells[i] % (side * side)
-        xy[i, 0] = (tile_cols[tile] * side + place % side + 0.5) * res
-        xy[i, 1] = (tile_rows[tile] * side + place // side + 0.5) * res
     cdef Py_ssize_t* start = <Py_ssize_t*>malloc((n + 1) * sizeof(Py_ssize_t))
     cdef Py_ssize_t* parent = <Py_ssize_t*>malloc(n * sizeof(Py_ssize_t))
     cdef Py_ssize_t* slot = <Py_ssize_t*>malloc(n * sizeof(Py_ssize_t))

@@ -5,7 +5,8 @@ neighbourhood rule's classification, and the clamped log-odds update.
 
 Compiled by ``pip install`` (setup.py); the algorithm and its documentation live in
 ``dynslam_cli.mapping.grid`` and ``dynslam_cli.mapping.dynamic``. No fast-math: results
-are the same on every run. The long loops release the GIL, so threads (a Dask worker's, say) can process several logs at once.
+are the same on every run. The long loops release the GIL, so threads (a Dask worker's,
+say) can process several logs at once.
 """
 
 import numpy as np

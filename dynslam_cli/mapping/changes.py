@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dynslam_cli.mapping import _changes, _grid
-from dynslam_cli.mapping.grid import TILE, GridStack, Observation, logit, steps
+from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
 
 if TYPE_CHECKING:
     from dynslam_cli.config import Config
@@ -127,8 +127,8 @@ class ChangeRecorder:
         grids = self.grids
         if hit_on_free.any():
             self._sightings.frombytes(_changes.scan_blobs(
-                obs.hit[hit_on_free], grids.tile_rows, grids.tile_cols, TILE,
-                grids.resolution, self.config.blob_gap_m, scan).tobytes())
+                grids.cell_centres(obs.hit[hit_on_free]), self.config.blob_gap_m,
+                scan).tobytes())
         static = grids.layers["static"].reshape(-1)
         if "dynamic" in grids.layers:
             _add(self._cleared, self._cleared_scan, scan, _grid.cells_above(
@@ -174,9 +174,8 @@ class ChangeRecorder:
         """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
         indices and scans."""
         cells = np.frombuffer(self._cleared, np.int64)
-        rows, cols = self.grids.world_cells(cells)
-        xy = (np.column_stack((cols, rows)) + 0.5) * self.grids.resolution
-        return xy, cells, np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
+        scans = np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
+        return self.grids.cell_centres(cells), cells, scans
 
     def rising(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells hit where S did not yet hold them Occupied (nor Free around them), and the

@@ -206,6 +206,11 @@ class GridStack:
         return (self.tile_rows[tile].astype(np.int64) * TILE + r,
                 self.tile_cols[tile].astype(np.int64) * TILE + c)
 
+    def cell_centres(self, flat: np.ndarray) -> np.ndarray:
+        """Map-frame (x, y) of the centres of cells given by flat index (N × 2)."""
+        rows, cols = self.world_cells(flat)
+        return (np.column_stack((cols, rows)) + 0.5) * self.resolution
+
     def flat_cells(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Flat indices of world cells (rows, cols); -1 where no tile holds the cell."""
         rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
