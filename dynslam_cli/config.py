@@ -168,6 +168,19 @@ class Config:
             (c.min_points >= 3 and c.min_length_m > 0, "corners: min_points >= 3, length > 0"),
             (0 < c.min_angle_deg < 90, "corners.min_angle_deg must be in (0, 90)"),
         ]
+        mc = self.match.correlative
+        checks += [
+            (self.match.method in ("icp", "correlative"),
+             "match.method must be icp or correlative"),
+            (0.005 <= mc.resolution_m <= 0.5 and mc.field_sigma_m > 0,
+             "match.correlative: resolution_m must be in [0.005, 0.5] m, field_sigma_m > 0"),
+            (0 < mc.outlier_share < 1, "match.correlative.outlier_share must be in (0, 1)"),
+            (mc.effective_points > 0 and mc.window_sigmas > 0,
+             "match.correlative: effective_points and window_sigmas must be > 0"),
+            (0 < mc.min_window_m <= mc.max_window_m <= 5
+             and 0 < mc.min_window_deg <= mc.max_window_deg <= 180,
+             "match.correlative: 0 < min_window <= max_window (at most 5 m and 180 deg)"),
+        ]
         lp = self.loop
         checks += [
             (lp.node_distance_m > 0 and lp.node_angle_deg > 0,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -26,6 +26,7 @@ import numpy as np
 from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization.correlative import CorrelativeConfig, LogField, log_field, search
 from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D, Scan
 
@@ -38,6 +39,8 @@ CONVERGED_STEP = (1e-3, 1e-4)
 NO_ODOMETRY_SIGMA = (0.3, 0.3, math.radians(15.0))
 # When the match from the odometry's guess fails, these turns of that guess are tried too.
 RECOVERY_TURNS_DEG = (-30.0, -20.0, -10.0, 10.0, 20.0, 30.0)
+# ICP may move a correlative match this far (χ², 3 dof, 1%) under the match's covariance.
+REFINE_CHI2 = 11.34
 MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations from its start
 
 
@@ -45,6 +48,11 @@ MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations fr
 class MatchConfig:
     enabled: bool = True
     """False: the EKF predicts from wheel odometry alone."""
+    method: str = "icp"
+    """"icp": point-to-line ICP from the odometry's guess, with retries from turned guesses
+    where it fails. "correlative": the best pose of a window around the odometry's guess
+    on the local map's likelihood (its covariance from the window's posterior, fused with
+    the odometry's noise model; see dynslam_cli.localization.correlative), refined by ICP."""
     max_range_m: float = 20.0
     """Readings beyond this are not matched."""
     subsample: int = 1
@@ -79,6 +87,8 @@ class MatchConfig:
     """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
     against shares its key scans' errors): for the match's information they count as this
     many independent pairs."""
+    correlative: CorrelativeConfig = field(default_factory=CorrelativeConfig)
+    """The correlative search (method = "correlative")."""
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
@@ -156,6 +166,8 @@ class LocalMap:
         self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
         self._cfg = cfg
         self.reference: tuple[PointIndex, np.ndarray] | None = None
+        self._points = np.zeros((0, 2))
+        self._field: LogField | None = None
 
     def add(self, pose: Pose2D, points: np.ndarray) -> None:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
@@ -164,8 +176,17 @@ class LocalMap:
         if len(pts) < 20:
             self.reference = None
             return
-        index = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)])
+        self._points = pts[thin(pts, self._cfg.local_map_cell_m)]
+        self._field = None
+        index = PointIndex(self._points)
         self.reference = (index, index.normals(self._cfg.normal_neighbours))
+
+    def field(self) -> LogField:
+        """The correlative search's lookup table of the local map (made when first asked
+        after a key scan)."""
+        if self._field is None:
+            self._field = log_field(self._points, self._cfg.correlative)
+        return self._field
 
 
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
@@ -233,6 +254,8 @@ class ScanMatcher:
                guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
         """The matched pose (matcher frame) of the scan's points, its source and its
         covariance."""
+        if self.cfg.method == "correlative" and scan.has_odometry:
+            return self._correlative(pts, reference, guess, wheel)
         sigma = self._prior_sigma(scan, wheel)
         ref, normals = reference
         match = icp(ref, normals, pts, guess, self.cfg, sigma)
@@ -244,6 +267,26 @@ class ScanMatcher:
                 return (recovered.pose, "recovered",
                         fused_covariance(recovered.information, sigma))
         return guess, "fallback", None
+
+    def _correlative(self, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
+                     guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
+        """The correlative search's best pose around the odometry's guess (prior: the
+        wheel odometry's noise model), refined by ICP within the search's own uncertainty; the
+        search's covariance. Too few end points on the local map's walls: the odometry."""
+        cfg = self.cfg
+        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, cfg.correlative.odometry)
+        post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative)
+        if len(pts) < 20 or post.score < cfg.min_inliers:
+            return guess, "fallback", None
+        ref, normals = reference
+        sigma = np.sqrt(np.diag(post.cov))
+        refined = icp(ref, normals, pts, post.pose, cfg, sigma)
+        d = np.array([refined.pose.x - post.pose.x, refined.pose.y - post.pose.y,
+                      math.remainder(refined.pose.theta - post.pose.theta, math.tau)])
+        if (refined.share >= cfg.min_inliers and refined.rms <= cfg.max_rms_m
+                and d @ np.linalg.solve(post.cov, d) <= REFINE_CHI2):
+            return refined.pose, "matched", post.cov
+        return post.pose, "matched", post.cov
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
               sigma: Sequence[float]) -> bool:
