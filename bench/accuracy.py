@@ -7,6 +7,9 @@ relocation (paper Table 4, event by event) and scores with dynslam_cli.evaluate.
 table and writes bench/accuracy.json.
 
     python bench/accuracy.py [--duration 600] [--rate 10] [--worlds corridors,arena]
+                             [--modes S/D,ordinary,odometry] [--method icp|correlative]
+
+``--method`` sets the local scan matcher (``[match] method``) of every run.
 """
 
 from __future__ import annotations
@@ -48,7 +51,8 @@ MODES = {
 }
 
 
-def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: Path) -> dict:
+def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: Path,
+        method: str | None = None) -> dict:
     log, truth_path = tmp / f"{world}-{noise}.log", tmp / f"{world}-{noise}.json"
     if not log.exists():
         steps, truth = simulate(build_world(world), duration, rate, 0,
@@ -58,6 +62,8 @@ def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: 
         write_truth(truth_path, truth)
     truth = json.loads(truth_path.read_text())
     config = MODES[mode](Config())
+    if method is not None:
+        config = replace(config, match=replace(config.match, method=method))
     source, _, reader = open_log(str(log), ReaderOptions())
     start = time.perf_counter()
     result, snaps = snapshots_at(reader.scans(), config, [e["time"] for e in truth["events"]])
@@ -93,14 +99,17 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
+    ap.add_argument("--modes", default=",".join(MODES))
+    ap.add_argument("--method", choices=("icp", "correlative"), default=None)
     ap.add_argument("--out", default=str(ROOT / "bench" / "accuracy.json"))
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for world in args.worlds.split(","):
             for noise in (0.0, 1.0):
-                for mode in MODES:
-                    rows.append(one(world, noise, mode, args.duration, args.rate, Path(d)))
+                for mode in args.modes.split(","):
+                    rows.append(one(world, noise, mode, args.duration, args.rate, Path(d),
+                                    args.method))
     head = ("world", "odom", "mode", "ATE m", "odo ATE", "S prec", "S recall", "ghost",
             "D prec", "moved", "det.static", "vacated", "ch. appeared", "ch. vacated",
             "ch. moving")

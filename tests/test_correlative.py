@@ -102,3 +102,17 @@ def test_the_method_is_a_config_switch_checked_at_load():
         load_config(overrides={"match": {"method": "ndt"}})
     with pytest.raises(ConfigError, match="outlier_share"):
         load_config(overrides={"match": {"correlative": {"outlier_share": 1.5}}})
+
+
+def test_a_glitch_beyond_the_odometrys_window_is_found_by_widening_it():
+    """The odometry's guess is 20° and 0.25 m off with a prior of 0.5° and 1 cm (a doubled
+    turn): nothing in the first window explains the scan, the wider windows find the true
+    pose."""
+    old, new = Pose2D(0.0, 0.0, 0.0), Pose2D(0.3, 0.1, math.radians(15.0))
+    field = log_field(robot_points(old), CFG)
+    true = relative(old, new)
+    guess = Pose2D(true.x + 0.25, true.y, true.theta + math.radians(20.0))
+    post = search(field, robot_points(new), guess, (0.01, 0.01, math.radians(0.5)), CFG, 0.5)
+    assert post.score > 0.8
+    assert math.hypot(post.pose.x - true.x, post.pose.y - true.y) < 0.04
+    assert abs(post.pose.theta - true.theta) < math.radians(0.6)

@@ -53,13 +53,15 @@ class CorrelativeConfig:
     (Kümmerle et al. relations against the raw odometry: 2.5° rms over 0.45 m with 2° of
     turn, 4.4° over 11°, 4-8% of the distance): five times the EKF's default rotation
     noise."""
+    odometry_glitch: float = 1e-3
+    """The odometry's prior never falls below this share of its peak (slips, glitches)."""
     window_sigmas: float = 3.0
     """The window spans this many of the odometry prior's standard deviations ..."""
     min_window_m: float = 0.1
     min_window_deg: float = 3.0
     """... and at least this much either way ..."""
     max_window_m: float = 1.0
-    max_window_deg: float = 30.0
+    max_window_deg: float = 60.0
     """... and at most this."""
 
 
@@ -112,26 +114,53 @@ def angle_step(points: np.ndarray, resolution: float) -> float:
 
 
 def search(field: LogField, pts: np.ndarray, guess: Pose2D, prior_sigma: tuple[float, ...],
-           cfg: CorrelativeConfig) -> Posterior:
+           cfg: CorrelativeConfig, min_score: float = 0.0) -> Posterior:
     """The posterior of the pose of ``pts``' frame in the field's frame, over a window of
     ``cfg.window_sigmas`` prior standard deviations around ``guess`` (the odometry's pose,
-    with ``prior_sigma`` = its x, y, θ standard deviations)."""
-    res = field.resolution
-    sx, sy, sth = (max(float(s), 1e-9) for s in prior_sigma)
-    half_m = min(max(cfg.window_sigmas * max(sx, sy), cfg.min_window_m), cfg.max_window_m)
-    half_th = min(max(cfg.window_sigmas * sth, math.radians(cfg.min_window_deg)),
+    with ``prior_sigma`` = its x, y, θ standard deviations). Where the best pose lies on
+    the window's edge (the odometry slipped or glitched), the window is searched again
+    WIDEN times as wide in that direction (translation or rotation), up to the largest
+    window; and in both where it scores below ``min_score`` (nothing in the window
+    explains the scan)."""
+    sigma = tuple(max(float(s), 1e-9) for s in prior_sigma)
+    half_m = min(max(cfg.window_sigmas * max(sigma[:2]), cfg.min_window_m), cfg.max_window_m)
+    half_th = min(max(cfg.window_sigmas * sigma[2], math.radians(cfg.min_window_deg)),
                   math.radians(cfg.max_window_deg))
+    step = angle_step(pts, field.resolution)
+    while True:
+        post, edge_m, edge_th = _window_posterior(field, pts, guess, sigma, half_m, half_th,
+                                                  step, cfg)
+        lost = post.score < min_score
+        edge_m, edge_th = edge_m or lost, edge_th or lost
+        wider = (min(half_m * WIDEN, cfg.max_window_m) if edge_m else half_m,
+                 min(half_th * WIDEN, math.radians(cfg.max_window_deg)) if edge_th else half_th)
+        if wider == (half_m, half_th):
+            return post
+        half_m, half_th = wider
+
+
+WIDEN = 3.0
+
+
+def _window_posterior(field: LogField, pts: np.ndarray, guess: Pose2D,
+                      sigma: tuple[float, ...], half_m: float, half_th: float, step: float,
+                      cfg: CorrelativeConfig) -> tuple[Posterior, bool, bool]:
+    """The posterior over one window (half widths ``half_m``, ``half_th``, rotation
+    ``step``) and whether its best pose is on the window's edge in translation, and in
+    rotation."""
+    res = field.resolution
+    sx, sy, sth = sigma
     n_xy = math.ceil(half_m / res)
     t = np.arange(-n_xy, n_xy + 1)
-    step = angle_step(pts, res)
-    dth = np.arange(-math.ceil(half_th / step), math.ceil(half_th / step) + 1) * step
+    n_th = math.ceil(half_th / step)
+    dth = np.arange(-n_th, n_th + 1) * step
     scores = _loops.mean_scores(field.grid, float(field.origin[0]), float(field.origin[1]),
                                 res, np.ascontiguousarray(pts, dtype=np.float64),
                                 guess.x, guess.y, guess.theta + dth, t, t)
     dm = t * res
-    log_prior = -0.5 * ((dth[:, None, None] / sth) ** 2 + (dm[None, :, None] / sy) ** 2
-                        + (dm[None, None, :] / sx) ** 2)
-    log_post = cfg.effective_points * scores + log_prior
+    log_post = cfg.effective_points * scores + odometry_log_prior(
+        dm[None, None, :] / sx, dm[None, :, None] / sy, dth[:, None, None] / sth,
+        cfg.odometry_glitch)
     a, r, c = np.unravel_index(int(np.argmax(log_post)), log_post.shape)
     w = np.exp(log_post - log_post[a, r, c])
     w /= w.sum()
@@ -144,7 +173,17 @@ def search(field: LogField, pts: np.ndarray, guess: Pose2D, prior_sigma: tuple[f
     cov = (centred * w.reshape(-1, 1)).T @ centred
     cov += np.diag([res * res, res * res, step * step]) / 12.0  # within a cell
     pose = Pose2D(guess.x + best[0], guess.y + best[1], guess.theta + best[2])
-    return Posterior(pose, cov, float(scores[a, r, c] / field.peak))
+    return (Posterior(pose, cov, float(scores[a, r, c] / field.peak)),
+            r in (0, 2 * n_xy) or c in (0, 2 * n_xy), a in (0, 2 * n_th))
+
+
+def odometry_log_prior(zx: np.ndarray, zy: np.ndarray, zth: np.ndarray,
+                       glitch: float) -> np.ndarray:
+    """Log prior of an offset from the odometry's guess, given in its standard deviations
+    (broadcast): a Gaussian, with a floor of ``glitch`` times its peak for the odometry's
+    slips and glitches (a doubled turn), so that a scan that clearly says otherwise is
+    believed."""
+    return np.logaddexp(-0.5 * (zx ** 2 + zy ** 2 + zth ** 2), math.log(glitch))
 
 
 PEAK_CELLS = 2  # the pose is the posterior's mean over this many steps around its best

@@ -272,10 +272,20 @@ class ScanMatcher:
                      guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
         """The correlative search's best pose around the odometry's guess (prior: the
         wheel odometry's noise model), refined by ICP within the search's own uncertainty; the
-        search's covariance. Too few end points on the local map's walls: the odometry."""
+        search's covariance. Too few end points on the local map's walls: the search again
+        around the last motion repeated ("recovered" if that is better), else the
+        odometry."""
         cfg = self.cfg
         st, sr = motion_std(wheel.x, wheel.y, wheel.theta, cfg.correlative.odometry)
-        post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative)
+        post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative,
+                      cfg.min_inliers)
+        source = "matched"
+        if post.score < cfg.min_inliers:  # stale odometry (still, then a jump): the last motion
+            steady = compose(self._pose, self._last_increment)
+            retry = search(self._map.field(), pts, steady, (st, st, sr), cfg.correlative,
+                           cfg.min_inliers)
+            if retry.score > post.score:
+                post, source = retry, "recovered"
         if len(pts) < 20 or post.score < cfg.min_inliers:
             return guess, "fallback", None
         ref, normals = reference
@@ -285,8 +295,8 @@ class ScanMatcher:
                       math.remainder(refined.pose.theta - post.pose.theta, math.tau)])
         if (refined.share >= cfg.min_inliers and refined.rms <= cfg.max_rms_m
                 and d @ np.linalg.solve(post.cov, d) <= REFINE_CHI2):
-            return refined.pose, "matched", post.cov
-        return post.pose, "matched", post.cov
+            return refined.pose, source, post.cov
+        return post.pose, source, post.cov
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
               sigma: Sequence[float]) -> bool:

@@ -1,0 +1,89 @@
+"""Is the local scan matcher's covariance honest? The normalized estimation error squared
+(NEES) of its increments on the built-in worlds, whose truth is exact.
+
+Each world is simulated with drifting odometry, its scans are matched one after another as
+the front end matches them, and every matched increment's error against the true increment
+is weighed by the covariance the matcher gave it: eᵀ Σ⁻¹ e, whose mean is 3 (the degrees
+of freedom) for an honest covariance, above for an overconfident one.
+
+    python bench/calibration.py [--worlds office,hall] [--method icp|correlative]
+                                [--duration 300] [--rate 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from dynslam_cli.config import Config  # noqa: E402
+from dynslam_cli.geometry import relative  # noqa: E402
+from dynslam_cli.localization.scanmatch import ScanMatcher  # noqa: E402
+from dynslam_cli.simulate import (  # noqa: E402
+    WORLD_NAMES,
+    LaserModel,
+    OdometryNoise,
+    build_world,
+    simulate,
+)
+from dynslam_cli.types import Pose2D  # noqa: E402
+from dynslam_formats import ReaderOptions, open_log  # noqa: E402
+from dynslam_formats.simlogs import write_carmen  # noqa: E402
+
+
+def nees(world: str, method: str, duration: float, rate: float, tmp: Path) -> dict:
+    steps, truth = simulate(build_world(world), duration, rate, 0,
+                            noise=OdometryNoise().scaled(1.0))
+    log = tmp / f"{world}.log"
+    with open(log, "w") as f:
+        write_carmen(f, steps, LaserModel(), "flaser", world)
+    config = Config()
+    config = replace(config, match=replace(config.match, method=method))
+    matcher = ScanMatcher(config.match, config.ekf.noise)
+    poses = [Pose2D(*p[1:4]) for p in truth.poses]
+    source, _, reader = open_log(str(log), ReaderOptions())
+    values, errors = [], []
+    for k, scan in enumerate(reader.scans()):
+        inc, _, cov = matcher.increment(config.laser.limit(scan))
+        if k == 0 or cov is None:
+            continue
+        true = relative(poses[k - 1], poses[k])
+        e = np.array([inc.x - true.x, inc.y - true.y,
+                      math.remainder(inc.theta - true.theta, math.tau)])
+        values.append(float(e @ np.linalg.solve(cov, e)))
+        errors.append(e)
+    source.close()
+    v, err = np.array(values), np.array(errors)
+    return {"world": world, "method": method, "matched": len(v), "nees_mean": float(v.mean()),
+            "nees_median": float(np.median(v)),
+            "rms_mm": float(1000 * np.sqrt((err[:, :2] ** 2).sum(axis=1).mean())),
+            "rms_deg": float(np.degrees(np.sqrt((err[:, 2] ** 2).mean())))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
+    ap.add_argument("--method", choices=("icp", "correlative"), default="correlative")
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--rate", type=float, default=10.0)
+    args = ap.parse_args()
+    print(f"{'world':12} {'method':12} {'matched':>7} {'NEES mean':>9} {'median':>7} "
+          f"{'err mm':>7} {'err deg':>7}")
+    with tempfile.TemporaryDirectory() as d:
+        for world in args.worlds.split(","):
+            r = nees(world, args.method, args.duration, args.rate, Path(d))
+            print(f"{world:12} {args.method:12} {r['matched']:7} {r['nees_mean']:9.2f} "
+                  f"{r['nees_median']:7.2f} {r['rms_mm']:7.1f} {r['rms_deg']:7.3f}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()

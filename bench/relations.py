@@ -1,0 +1,110 @@
+"""Localization on the raw logs of the Kümmerle et al. (2009) benchmark, scored by its
+ground-truth relations: MIT CSAIL, Intel and Freiburg 079 with the robots' real, drifting
+wheel odometry, from the Carmen logs and (Intel, FR079) from the original bags.
+
+Each log is run through ``dynslam process`` as a user runs it, with the pose graph off
+(``local``: the scan matcher and the EKF alone) and on (``full``), and scored with
+``dynslam evaluate --relations`` (mean absolute translation m / rotation deg).
+
+    python bench/relations.py [--modes local,full] [--logs mit,intel,fr079,intel-bag,fr079-bag]
+                              [--method icp|correlative] [--config FILE] [--out FILE.json]
+
+Prints one row per log and mode beside the published figures (plain scan matching and
+graph mapping from Kümmerle et al. 2009, Cartographer from Hess et al. 2016) and writes
+the rows as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = ROOT.parent / "shared" / "datasets"
+DYNSLAM = [sys.executable, "-m", "dynslam_cli"]
+
+LOGS = {  # name: (log, relations)
+    "mit": ("carmen/mit-csail.clf", "mit-csail"),
+    "intel": ("carmen/kummerle/intel.clf.gz", "intel"),
+    "fr079": ("carmen/kummerle/fr079.clf.gz", "fr079"),
+    "intel-bag": ("rosbag1/kummerle/intel.orig.bag", "intel"),
+    "fr079-bag": ("rosbag1/kummerle/fr079.orig.bag", "fr079"),
+}
+# Published relation errors (m): plain scan matching and graph mapping (Kümmerle et al.
+# 2009), Cartographer (Hess et al. 2016, Table II).
+PUBLISHED = {"mit-csail": (0.106, 0.004, 0.0319), "intel": (0.220, 0.031, 0.0229),
+             "fr079": (0.258, 0.056, 0.0452)}
+
+
+def run(name: str, mode: str, overrides: dict, tmp: Path) -> dict:
+    log, rel = LOGS[name]
+    config = dict(overrides)
+    config["loop"] = {**config.get("loop", {}), "enabled": mode == "full"}
+    cfg = tmp / f"{name}-{mode}.toml"
+    cfg.write_text(_toml(config))
+    out = tmp / f"{name}-{mode}"
+    start = time.perf_counter()
+    subprocess.run([*DYNSLAM, "process", str(DATA / log), "-o", str(out), "--force", "-q",
+                    "--config", str(cfg)], check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+    seconds = time.perf_counter() - start
+    relations = DATA / "relations" / f"{rel}.relations"
+    score = json.loads(subprocess.run(
+        [*DYNSLAM, "evaluate", str(out), "--relations", str(relations), "--json"],
+        check=True, capture_output=True, text=True).stdout)["relations"]
+    return {"log": name, "mode": mode, "trans_m": score["translational_m"]["mean"],
+            "rot_deg": score["rotational_deg"]["mean"], "matched": score["matched"],
+            "relations": score["relations"], "seconds": seconds, "published": PUBLISHED[rel]}
+
+
+def _toml(config: dict) -> str:
+    lines = []
+    for section, values in config.items():
+        lines.append(f"[{section}]")
+        for key, value in values.items():
+            if isinstance(value, dict):
+                continue
+            lines.append(f"{key} = {json.dumps(value)}")
+        for key, value in values.items():
+            if isinstance(value, dict):
+                lines.append(f"[{section}.{key}]")
+                lines += [f"{k} = {json.dumps(v)}" for k, v in value.items()]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--modes", default="local,full")
+    ap.add_argument("--logs", default=",".join(LOGS))
+    ap.add_argument("--method", choices=("icp", "correlative"), default=None,
+                    help="[match] method (default: the configuration's)")
+    ap.add_argument("--config", type=Path, help="a TOML file the runs start from")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "relations.json")
+    args = ap.parse_args()
+    if not DATA.is_dir():
+        sys.exit(f"no data sets at {DATA}")
+    overrides = tomllib.loads(args.config.read_text()) if args.config else {}
+    if args.method:
+        overrides.setdefault("match", {})["method"] = args.method
+    rows = []
+    print(f"{'log':10} {'mode':5} {'trans m':>8} {'rot deg':>8} {'matched':>9} {'s':>6}   "
+          f"published: scan matching / graph mapping / Cartographer (m)")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.logs.split(","):
+            for mode in args.modes.split(","):
+                r = run(name, mode, overrides, Path(tmp))
+                rows.append(r)
+                print(f"{name:10} {mode:5} {r['trans_m']:8.4f} {r['rot_deg']:8.3f} "
+                      f"{r['matched']:>4}/{r['relations']:<4} {r['seconds']:6.1f}   "
+                      f"{' / '.join(f'{v:g}' for v in r['published'])}", flush=True)
+    args.out.write_text(json.dumps(rows, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
