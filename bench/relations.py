@@ -22,10 +22,14 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from dynslam_cli.config import Config, load_config, to_toml  # noqa: E402
+
 DATA = ROOT.parent / "shared" / "datasets"
 DYNSLAM = [sys.executable, "-m", "dynslam_cli"]
 
@@ -42,12 +46,10 @@ PUBLISHED = {"mit-csail": (0.106, 0.004, 0.0319), "intel": (0.220, 0.031, 0.0229
              "fr079": (0.258, 0.056, 0.0452)}
 
 
-def run(name: str, mode: str, overrides: dict, tmp: Path) -> dict:
+def run(name: str, mode: str, config: Config, tmp: Path) -> dict:
     log, rel = LOGS[name]
-    config = dict(overrides)
-    config["loop"] = {**config.get("loop", {}), "enabled": mode == "full"}
     cfg = tmp / f"{name}-{mode}.toml"
-    cfg.write_text(_toml(config))
+    cfg.write_text(to_toml(replace(config, loop=replace(config.loop, enabled=mode == "full"))))
     out = tmp / f"{name}-{mode}"
     start = time.perf_counter()
     subprocess.run([*DYNSLAM, "process", str(DATA / log), "-o", str(out), "--force", "-q",
@@ -63,21 +65,6 @@ def run(name: str, mode: str, overrides: dict, tmp: Path) -> dict:
             "relations": score["relations"], "seconds": seconds, "published": PUBLISHED[rel]}
 
 
-def _toml(config: dict) -> str:
-    lines = []
-    for section, values in config.items():
-        lines.append(f"[{section}]")
-        for key, value in values.items():
-            if isinstance(value, dict):
-                continue
-            lines.append(f"{key} = {json.dumps(value)}")
-        for key, value in values.items():
-            if isinstance(value, dict):
-                lines.append(f"[{section}.{key}]")
-                lines += [f"{k} = {json.dumps(v)}" for k, v in value.items()]
-    return "\n".join(lines) + "\n"
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--modes", default="local,full")
@@ -89,16 +76,15 @@ def main() -> None:
     args = ap.parse_args()
     if not DATA.is_dir():
         sys.exit(f"no data sets at {DATA}")
-    overrides = tomllib.loads(args.config.read_text()) if args.config else {}
-    if args.method:
-        overrides.setdefault("match", {})["method"] = args.method
+    config = load_config(args.config,
+                         {"match": {"method": args.method}} if args.method else None)
     rows = []
     print(f"{'log':10} {'mode':5} {'trans m':>8} {'rot deg':>8} {'matched':>9} {'s':>6}   "
           f"published: scan matching / graph mapping / Cartographer (m)")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.logs.split(","):
             for mode in args.modes.split(","):
-                r = run(name, mode, overrides, Path(tmp))
+                r = run(name, mode, config, Path(tmp))
                 rows.append(r)
                 print(f"{name:10} {mode:5} {r['trans_m']:8.4f} {r['rot_deg']:8.3f} "
                       f"{r['matched']:>4}/{r['relations']:<4} {r['seconds']:6.1f}   "

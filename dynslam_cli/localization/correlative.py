@@ -87,21 +87,36 @@ class LogField:
     peak: float  # the value on a wall: a score's 1
 
 
+def gaussian_kernel(cells: np.ndarray, resolution: float, sigma: float) -> np.ndarray:
+    """exp(−d²/2σ²) over the square of cell offsets ``cells`` (each axis; d in metres)."""
+    d = cells * resolution
+    return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / sigma ** 2)
+
+
+def splatted(points: np.ndarray, kernels: tuple[np.ndarray, ...], resolution: float
+             ) -> tuple[list[np.ndarray], np.ndarray]:
+    """One grid per kernel, each cell the max of the kernel placed on every point's cell
+    (N×2 points, square kernels of odd width), with room for the widest kernel around the
+    points; and the map coordinates of cell (0, 0)'s centre."""
+    margin = (max(k.shape[0] for k in kernels) // 2 + 1) * resolution
+    lo = points.min(axis=0) - margin
+    shape = np.ceil((points.max(axis=0) + margin - lo) / resolution).astype(int) + 1
+    cols, rows = np.floor((points - lo) / resolution + 0.5).astype(np.intp).T.copy()
+    grids = []
+    for kernel in kernels:
+        grids.append(np.zeros((shape[1], shape[0])))
+        _loops.splat_max(grids[-1], rows, cols, kernel)
+    return grids, lo
+
+
 def log_field(points: np.ndarray, cfg: CorrelativeConfig) -> LogField:
     """The lookup table of the submap ``points`` (N×2, its frame)."""
-    res, sigma, eps = cfg.resolution_m, cfg.field_sigma_m, cfg.outlier_share
-    reach = max(1, math.ceil(4.0 * sigma / res))
-    d = np.arange(-reach, reach + 1) * res
-    near = np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / sigma ** 2)
-    margin = (reach + 1) * res
-    lo = points.min(axis=0) - margin
-    shape = np.ceil((points.max(axis=0) + margin - lo) / res).astype(int) + 1
-    cols, rows = np.floor((points - lo) / res + 0.5).astype(np.intp).T.copy()
-    grid = np.zeros((shape[1], shape[0]))
-    _loops.splat_max(grid, rows, cols, near)
-    peak = math.log((eps + (1.0 - eps)) / eps)
-    grid = np.log1p((1.0 - eps) / eps * grid)  # log((ε + (1 − ε) f) / ε)
-    return LogField(grid, lo, res, peak)
+    res, eps = cfg.resolution_m, cfg.outlier_share
+    reach = max(1, math.ceil(4.0 * cfg.field_sigma_m / res))
+    (near,), lo = splatted(points, (gaussian_kernel(np.arange(-reach, reach + 1), res,
+                                                    cfg.field_sigma_m),), res)
+    grid = np.log1p((1.0 - eps) / eps * near)  # log((ε + (1 − ε) f) / ε)
+    return LogField(grid, lo, res, -math.log(eps))
 
 
 def angle_step(points: np.ndarray, resolution: float) -> float:
@@ -167,8 +182,8 @@ def _window_posterior(field: LogField, pts: np.ndarray, guess: Pose2D,
     grid = np.stack(np.broadcast_arrays(dm[None, None, :], dm[None, :, None],
                                         dth[:, None, None]), axis=-1)  # (x, y, θ) offsets
     near = tuple(slice(max(i - PEAK_CELLS, 0), i + PEAK_CELLS + 1) for i in (a, r, c))
-    peak = w[near].reshape(-1, 1)
-    best = (grid[near].reshape(-1, 3) * peak).sum(axis=0) / peak.sum()
+    near_w = w[near].reshape(-1, 1)
+    best = (grid[near].reshape(-1, 3) * near_w).sum(axis=0) / near_w.sum()
     centred = grid.reshape(-1, 3) - best
     cov = (centred * w.reshape(-1, 1)).T @ centred
     cov += np.diag([res * res, res * res, step * step]) / 12.0  # within a cell

@@ -276,6 +276,8 @@ class ScanMatcher:
         around the last motion repeated ("recovered" if that is better), else the
         odometry."""
         cfg = self.cfg
+        if len(pts) < 20:
+            return guess, "fallback", None
         st, sr = motion_std(wheel.x, wheel.y, wheel.theta, cfg.correlative.odometry)
         post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative,
                       cfg.min_inliers)
@@ -286,7 +288,7 @@ class ScanMatcher:
                            cfg.min_inliers)
             if retry.score > post.score:
                 post, source = retry, "recovered"
-        if len(pts) < 20 or post.score < cfg.min_inliers:
+        if post.score < cfg.min_inliers:
             return guess, "fallback", None
         ref, normals = reference
         sigma = np.sqrt(np.diag(post.cov))
