@@ -7,7 +7,7 @@ is weighed by the covariance the matcher gave it: eᵀ Σ⁻¹ e, whose mean is 
 of freedom) for an honest covariance, above for an overconfident one.
 
     python bench/calibration.py [--worlds office,hall] [--method icp|correlative]
-                                [--duration 300] [--rate 10]
+                                [--config FILE] [--duration 300] [--rate 10]
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import argparse
 import math
 import sys
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dynslam_cli.config import Config  # noqa: E402
+from dynslam_cli.config import Config, load_config  # noqa: E402
 from dynslam_cli.geometry import relative  # noqa: E402
 from dynslam_cli.localization.scanmatch import ScanMatcher  # noqa: E402
 from dynslam_cli.simulate import (  # noqa: E402
@@ -39,14 +38,12 @@ from dynslam_formats import ReaderOptions, open_log  # noqa: E402
 from dynslam_formats.simlogs import write_carmen  # noqa: E402
 
 
-def nees(world: str, method: str, duration: float, rate: float, tmp: Path) -> dict:
+def nees(world: str, config: Config, duration: float, rate: float, tmp: Path) -> dict:
     steps, truth = simulate(build_world(world), duration, rate, 0,
                             noise=OdometryNoise().scaled(1.0))
     log = tmp / f"{world}.log"
     with open(log, "w") as f:
         write_carmen(f, steps, LaserModel(), "flaser", world)
-    config = Config()
-    config = replace(config, match=replace(config.match, method=method))
     matcher = ScanMatcher(config.match, config.ekf.noise)
     poses = [Pose2D(*p[1:4]) for p in truth.poses]
     source, _, reader = open_log(str(log), ReaderOptions())
@@ -62,8 +59,8 @@ def nees(world: str, method: str, duration: float, rate: float, tmp: Path) -> di
         errors.append(e)
     source.close()
     v, err = np.array(values), np.array(errors)
-    return {"world": world, "method": method, "matched": len(v), "nees_mean": float(v.mean()),
-            "nees_median": float(np.median(v)),
+    return {"world": world, "method": config.match.method, "matched": len(v),
+            "nees_mean": float(v.mean()), "nees_median": float(np.median(v)),
             "rms_mm": float(1000 * np.sqrt((err[:, :2] ** 2).sum(axis=1).mean())),
             "rms_deg": float(np.degrees(np.sqrt((err[:, 2] ** 2).mean())))}
 
@@ -72,14 +69,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
     ap.add_argument("--method", choices=("icp", "correlative"), default="correlative")
+    ap.add_argument("--config", type=Path, help="a TOML file the runs start from")
     ap.add_argument("--duration", type=float, default=300.0)
     ap.add_argument("--rate", type=float, default=10.0)
     args = ap.parse_args()
     print(f"{'world':12} {'method':12} {'matched':>7} {'NEES mean':>9} {'median':>7} "
           f"{'err mm':>7} {'err deg':>7}")
+    config = load_config(args.config, {"match": {"method": args.method}})
     with tempfile.TemporaryDirectory() as d:
         for world in args.worlds.split(","):
-            r = nees(world, args.method, args.duration, args.rate, Path(d))
+            r = nees(world, config, args.duration, args.rate, Path(d))
             print(f"{world:12} {args.method:12} {r['matched']:7} {r['nees_mean']:9.2f} "
                   f"{r['nees_median']:7.2f} {r['rms_mm']:7.1f} {r['rms_deg']:7.3f}",
                   flush=True)
