@@ -116,3 +116,32 @@ def test_a_glitch_beyond_the_odometrys_window_is_found_by_widening_it():
     assert post.score > 0.8
     assert math.hypot(post.pose.x - true.x, post.pose.y - true.y) < 0.04
     assert abs(post.pose.theta - true.theta) < math.radians(0.6)
+
+
+def test_stale_odometry_then_its_jump_is_matched_to_the_true_motion():
+    """The odometry stops updating for five scans while the robot turns, then reports the
+    whole turn at once (MIT CSAIL's log does this): the turn is matched scan by scan, and
+    the jump, which the scan contradicts, is taken for what it is."""
+    from .test_loopclosure import scan_at
+
+    matcher = ScanMatcher(MatchConfig(method="correlative"), NoiseModel())
+    estimate, odom = Pose2D(), Pose2D()
+    for k in range(30):
+        true = Pose2D(0.04 * k, 0.0, math.radians(4.0 * k))
+        if not 10 <= k < 15:  # stale from scan 10 to 14: the last reading repeated
+            odom = true
+        inc, _, _ = matcher.increment(scan_at(true, odom, 0.1 * k))
+        estimate = compose(estimate, inc)
+        err = relative(true, estimate)
+        assert math.hypot(err.x, err.y) < 0.03 and abs(err.theta) < math.radians(0.5), k
+
+
+def test_the_submaps_table_moves_with_its_points_not_with_their_cells():
+    """A wall point moved by a millimetre changes the lookup table by about a millimetre's
+    worth, wherever it lies in its cell: the match does not jump with a reading's rounding."""
+    a = np.array([[0.0, 0.0], [1.0, 0.0]]) + 0.0249  # just short of a cell's edge
+    b = a + 0.002
+    fa, fb = log_field(a, CFG), log_field(b, CFG)
+    assert np.allclose(fa.origin, fb.origin)
+    slope = fa.peak / CFG.field_sigma_m  # the steepest the table gets, per metre
+    assert np.abs(fa.grid - fb.grid).max() < 0.003 * slope

@@ -10,7 +10,7 @@ GIL, so threads (a Dask worker's, say) can process several logs at once.
 
 import numpy as np
 
-from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+from libc.math cimport INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, remainder, sin, sqrt
 from libc.stdlib cimport calloc, free, malloc, realloc
 
 ctypedef unsigned char u8
@@ -37,6 +37,29 @@ def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[
                     c = cols[k] + j
                     if kernel[i + h, j + h] > grid[r, c]:
                         grid[r, c] = kernel[i + h, j + h]
+
+
+def splat_gaussians(double[:, ::1] grid, const double[:, ::1] pts, double ox, double oy,
+                    double res, double sigma, Py_ssize_t reach):
+    """grid[r, c] = max(itself, exp(−d²/2σ²)) for every point within ``reach`` cells of cell
+    (r, c), d the distance from the point (not its cell) to the cell's centre: a point moved
+    by less than a cell moves the table by as little. Cell (0, 0) is centred on (ox, oy);
+    cells off the grid are skipped."""
+    cdef Py_ssize_t n = pts.shape[0], nr = grid.shape[0], nc = grid.shape[1], k, r, c, r0, c0
+    cdef double fx, fy, dx, dy, v, inv = 0.5 / (sigma * sigma)
+    with nogil:
+        for k in range(n):
+            fx = (pts[k, 0] - ox) / res
+            fy = (pts[k, 1] - oy) / res
+            c0 = <Py_ssize_t>floor(fx + 0.5)
+            r0 = <Py_ssize_t>floor(fy + 0.5)
+            for r in range(max(r0 - reach, 0), min(r0 + reach + 1, nr)):
+                dy = (r - fy) * res
+                for c in range(max(c0 - reach, 0), min(c0 + reach + 1, nc)):
+                    dx = (c - fx) * res
+                    v = exp(-(dx * dx + dy * dy) * inv)
+                    if v > grid[r, c]:
+                        grid[r, c] = v
 
 
 def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,

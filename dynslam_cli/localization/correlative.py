@@ -2,7 +2,9 @@
 "Real-Time Correlative Scan Matching", ICRA 2009).
 
 The submap (the last key scans' points at their estimated poses) is rasterized into a
-lookup table of each cell's log-likelihood for a beam ending there: a beam's end point lies
+lookup table of each cell's log-likelihood for a beam ending there (each point's Gaussian
+centred on the point itself, not on its cell, on a lattice fixed in the submap's frame: a
+reading moved by a millimetre moves the table by as little): a beam's end point lies
 near a wall with a Gaussian spread (``field_sigma_m``) or is an outlier with probability
 ``outlier_share`` (a person, a glass pane, a wall not yet in the submap). Every pose of a
 window around the wheel odometry's guess is scored by the mean log-likelihood of the scan's
@@ -113,8 +115,12 @@ def log_field(points: np.ndarray, cfg: CorrelativeConfig) -> LogField:
     """The lookup table of the submap ``points`` (N×2, its frame)."""
     res, eps = cfg.resolution_m, cfg.outlier_share
     reach = max(1, math.ceil(4.0 * cfg.field_sigma_m / res))
-    (near,), lo = splatted(points, (gaussian_kernel(np.arange(-reach, reach + 1), res,
-                                                    cfg.field_sigma_m),), res)
+    margin = (reach + 1) * res
+    lo = np.floor((points.min(axis=0) - margin) / res) * res  # on a lattice of the frame
+    shape = np.ceil((points.max(axis=0) + margin - lo) / res).astype(int) + 1
+    near = np.zeros((shape[1], shape[0]))
+    _loops.splat_gaussians(near, np.ascontiguousarray(points, dtype=np.float64),
+                           float(lo[0]), float(lo[1]), res, cfg.field_sigma_m, reach)
     grid = np.log1p((1.0 - eps) / eps * near)  # log((ε + (1 − ε) f) / ε)
     return LogField(grid, lo, res, -math.log(eps))
 

@@ -271,9 +271,13 @@ class ScanMatcher:
     def _correlative(self, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
                      guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
         """The correlative search's best pose around the odometry's guess (prior: the
-        wheel odometry's noise model), refined by ICP within the search's own uncertainty; the
-        search's covariance. Too few end points on the local map's walls: the search again
-        around the last motion repeated ("recovered" if that is better), else the
+        wheel odometry's noise model), refined by ICP within the search's own uncertainty.
+        Its covariance: the refined match's information fused with the odometry's prior
+        (as ICP's own matches), or the search's posterior where ICP did not refine it.
+        Where too few end points land on the local map's walls, or the best pose lies
+        beyond the odometry's window (stale odometry: still for a few scans, then the whole
+        motion at once), the search is run again around the last motion repeated, and the
+        better-scoring of the two wins ("recovered" if it is the second); nothing good: the
         odometry."""
         cfg = self.cfg
         if len(pts) < 20:
@@ -282,7 +286,9 @@ class ScanMatcher:
         post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative,
                       cfg.min_inliers)
         source = "matched"
-        if post.score < cfg.min_inliers:  # stale odometry (still, then a jump): the last motion
+        if post.score < cfg.min_inliers or _outside(post.pose, guess, (st, st, sr),
+                                                     cfg.correlative.window_sigmas):
+            # stale odometry (still, then a jump): the last motion repeated may explain it
             steady = compose(self._pose, self._last_increment)
             retry = search(self._map.field(), pts, steady, (st, st, sr), cfg.correlative,
                            cfg.min_inliers)
@@ -297,7 +303,7 @@ class ScanMatcher:
                       math.remainder(refined.pose.theta - post.pose.theta, math.tau)])
         if (refined.share >= cfg.min_inliers and refined.rms <= cfg.max_rms_m
                 and d @ np.linalg.solve(post.cov, d) <= REFINE_CHI2):
-            return refined.pose, source, post.cov
+            return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
         return post.pose, source, post.cov
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
@@ -332,3 +338,10 @@ class ScanMatcher:
                     and (best is None or (match.share, -match.rms) > (best.share, -best.rms))):
                 best = match
         return best
+
+
+def _outside(pose: Pose2D, guess: Pose2D, sigma: Sequence[float], sigmas: float) -> bool:
+    """Whether ``pose`` lies more than ``sigmas`` standard deviations from ``guess`` in
+    translation or rotation."""
+    return (math.hypot(pose.x - guess.x, pose.y - guess.y) > sigmas * max(sigma[0], sigma[1])
+            or abs(math.remainder(pose.theta - guess.theta, math.tau)) > sigmas * sigma[2])
