@@ -8,8 +8,10 @@ table and writes bench/accuracy.json.
 
     python bench/accuracy.py [--duration 600] [--rate 10] [--worlds corridors,arena]
                              [--modes S/D,ordinary,odometry] [--method icp|correlative]
+                             [--config FILE]
 
-``--method`` sets the local scan matcher (``[match] method``) of every run.
+``--config`` is the TOML file every run starts from (default: the built-in defaults);
+``--method`` sets its local scan matcher (``[match] method``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dynslam_cli.config import Config  # noqa: E402
+from dynslam_cli.config import Config, load_config  # noqa: E402
 from dynslam_cli.evaluate import (  # noqa: E402
     MapThresholds,
     score_changes,
@@ -52,7 +54,7 @@ MODES = {
 
 
 def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: Path,
-        method: str | None = None) -> dict:
+        base: Config) -> dict:
     log, truth_path = tmp / f"{world}-{noise}.log", tmp / f"{world}-{noise}.json"
     if not log.exists():
         steps, truth = simulate(build_world(world), duration, rate, 0,
@@ -61,9 +63,7 @@ def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: 
             write_carmen(f, steps, LaserModel(), "flaser", world)
         write_truth(truth_path, truth)
     truth = json.loads(truth_path.read_text())
-    config = MODES[mode](Config())
-    if method is not None:
-        config = replace(config, match=replace(config.match, method=method))
+    config = MODES[mode](base)
     source, _, reader = open_log(str(log), ReaderOptions())
     start = time.perf_counter()
     result, snaps = snapshots_at(reader.scans(), config, [e["time"] for e in truth["events"]])
@@ -101,15 +101,18 @@ def main() -> None:
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--method", choices=("icp", "correlative"), default=None)
+    ap.add_argument("--config", type=Path, help="a TOML file every run starts from")
     ap.add_argument("--out", default=str(ROOT / "bench" / "accuracy.json"))
     args = ap.parse_args()
+    base = load_config(args.config,
+                       {"match": {"method": args.method}} if args.method else None)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for world in args.worlds.split(","):
             for noise in (0.0, 1.0):
                 for mode in args.modes.split(","):
                     rows.append(one(world, noise, mode, args.duration, args.rate, Path(d),
-                                    args.method))
+                                    base))
     head = ("world", "odom", "mode", "ATE m", "odo ATE", "S prec", "S recall", "ghost",
             "D prec", "moved", "det.static", "vacated", "ch. appeared", "ch. vacated",
             "ch. moving")

@@ -46,13 +46,15 @@ PUBLISHED = {"mit-csail": (0.106, 0.004, 0.0319), "intel": (0.220, 0.031, 0.0229
              "fr079": (0.258, 0.056, 0.0452)}
 
 
-def run(name: str, mode: str, config: Config, tmp: Path) -> dict:
-    log, rel = LOGS[name]
+def run(name: str, mode: str, config: Config, tmp: Path, log: Path | None = None) -> dict:
+    """One run of the named benchmark log (or of ``log``, a copy of it) in one mode."""
+    path, rel = LOGS[name]
+    log = log or DATA / path
     cfg = tmp / f"{name}-{mode}.toml"
     cfg.write_text(to_toml(replace(config, loop=replace(config.loop, enabled=mode == "full"))))
     out = tmp / f"{name}-{mode}"
     start = time.perf_counter()
-    subprocess.run([*DYNSLAM, "process", str(DATA / log), "-o", str(out), "--force", "-q",
+    subprocess.run([*DYNSLAM, "process", str(log), "-o", str(out), "--force", "-q",
                     "--config", str(cfg)], check=True, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL)
     seconds = time.perf_counter() - start
