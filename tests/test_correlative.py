@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 from dynslam_cli.geometry import compose, relative
-from dynslam_cli.localization.correlative import CorrelativeConfig, log_field, search
+from dynslam_cli.localization.correlative import (
+    CorrelativeConfig,
+    log_field,
+    search,
+    with_points,
+)
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
 from dynslam_cli.simulate import ray_cast
@@ -145,3 +150,47 @@ def test_the_submaps_table_moves_with_its_points_not_with_their_cells():
     assert np.allclose(fa.origin, fb.origin)
     slope = fa.peak / CFG.field_sigma_m  # the steepest the table gets, per metre
     assert np.abs(fa.grid - fb.grid).max() < 0.003 * slope
+
+
+def test_a_table_grown_point_by_point_is_the_table_made_at_once():
+    """The submap's table grows with each key scan instead of being made anew: the same
+    values, on a grid grown to hold them."""
+    rng = np.random.default_rng(4)
+    parts = [rng.uniform(-3, 3, (50, 2)) + shift for shift in ([0, 0], [4, -2], [-5, 6])]
+    grown = None
+    for part in parts:
+        grown = with_points(grown, part, CFG)
+    whole = log_field(np.concatenate(parts), CFG)
+    c, r = np.rint((grown.origin - whole.origin) / CFG.resolution_m).astype(int)
+    assert c <= 0 and r <= 0
+    inner = grown.grid[-r:-r + whole.grid.shape[0], -c:-c + whole.grid.shape[1]]
+    assert inner.shape == whole.grid.shape and np.allclose(inner, whole.grid)
+    assert np.isclose(grown.grid.sum(), whole.grid.sum())  # and nothing beyond it
+
+
+def test_driving_straight_along_a_wall_seen_at_grazing_angles_is_not_standing_still():
+    """Straight down a corridor at a constant heading, the beams hit the walls at the same
+    places in the robot's frame scan after scan; the submap's table must hold the walls
+    between its sparse far end points, or every scan matches best where the last one was
+    (the simulated office once came out 6.8 m off with perfect odometry)."""
+    matcher = ScanMatcher(MatchConfig(method="correlative"), NoiseModel())
+    estimate = Pose2D()
+    for k in range(80):
+        true = Pose2D(0.08 * k, 0.0, 0.0)
+        inc, _, _ = matcher.increment(corridor_scan(true, true, 0.1 * k))
+        estimate = compose(estimate, inc)
+    err = relative(true, estimate)
+    assert math.hypot(err.x, err.y) < 0.05 and abs(err.theta) < math.radians(0.3)
+
+
+def test_walls_between_far_end_points_are_sampled_but_not_across_an_edge():
+    from dynslam_cli.localization.correlative import sampled_walls
+
+    wall = np.array([[1.0 / math.tan(math.radians(a)), 1.0] for a in (30, 20, 15, 12, 10)])
+    dense = sampled_walls(wall, 0.025)
+    assert np.allclose(dense[:, 1], 1.0)  # on the wall
+    gaps = np.diff(np.sort(dense[:, 0]))
+    assert gaps.max() < 0.03  # no gap left between its end points
+    edge = np.array([[1.0, 0.0], [1.0, 0.1], [1.0, 0.2], [3.0, 0.3], [3.0, 0.4], [3.0, 0.5]])
+    across = sampled_walls(edge, 0.025)
+    assert not np.any((across[:, 0] > 1.01) & (across[:, 0] < 2.99))  # object, then wall

@@ -10,7 +10,8 @@ GIL, so threads (a Dask worker's, say) can process several logs at once.
 
 import numpy as np
 
-from libc.math cimport INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, remainder, sin, sqrt
+from libc.math cimport (INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, log1p, remainder,
+                        sin, sqrt)
 from libc.stdlib cimport calloc, free, malloc, realloc
 
 ctypedef unsigned char u8
@@ -40,11 +41,11 @@ def splat_max(double[:, ::1] grid, const Py_ssize_t[::1] rows, const Py_ssize_t[
 
 
 def splat_gaussians(double[:, ::1] grid, const double[:, ::1] pts, double ox, double oy,
-                    double res, double sigma, Py_ssize_t reach):
-    """grid[r, c] = max(itself, exp(−d²/2σ²)) for every point within ``reach`` cells of cell
-    (r, c), d the distance from the point (not its cell) to the cell's centre: a point moved
-    by less than a cell moves the table by as little. Cell (0, 0) is centred on (ox, oy);
-    cells off the grid are skipped."""
+                    double res, double sigma, Py_ssize_t reach, double scale):
+    """grid[r, c] = max(itself, log(1 + scale·exp(−d²/2σ²))) for every point within
+    ``reach`` cells of cell (r, c), d the distance from the point (not its cell) to the
+    cell's centre: a point moved by less than a cell moves the table by as little. Cell
+    (0, 0) is centred on (ox, oy); cells off the grid are skipped."""
     cdef Py_ssize_t n = pts.shape[0], nr = grid.shape[0], nc = grid.shape[1], k, r, c, r0, c0
     cdef double fx, fy, dx, dy, v, inv = 0.5 / (sigma * sigma)
     with nogil:
@@ -57,7 +58,7 @@ def splat_gaussians(double[:, ::1] grid, const double[:, ::1] pts, double ox, do
                 dy = (r - fy) * res
                 for c in range(max(c0 - reach, 0), min(c0 + reach + 1, nc)):
                     dx = (c - fx) * res
-                    v = exp(-(dx * dx + dy * dy) * inv)
+                    v = log1p(scale * exp(-(dx * dx + dy * dy) * inv))
                     if v > grid[r, c]:
                         grid[r, c] = v
 

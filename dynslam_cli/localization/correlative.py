@@ -113,16 +113,70 @@ def splatted(points: np.ndarray, kernels: tuple[np.ndarray, ...], resolution: fl
 
 def log_field(points: np.ndarray, cfg: CorrelativeConfig) -> LogField:
     """The lookup table of the submap ``points`` (N×2, its frame)."""
+    return with_points(None, points, cfg)
+
+
+def with_points(field: LogField | None, points: np.ndarray, cfg: CorrelativeConfig
+                ) -> LogField:
+    """``field`` (None: an empty one) with ``points`` (N×2, its frame) added: the same values
+    as a table made of all the points at once, on a grid grown (with GROW_SLACK_M to spare
+    on every side) where the points reach beyond it."""
     res, eps = cfg.resolution_m, cfg.outlier_share
     reach = max(1, math.ceil(4.0 * cfg.field_sigma_m / res))
     margin = (reach + 1) * res
-    lo = np.floor((points.min(axis=0) - margin) / res) * res  # on a lattice of the frame
-    shape = np.ceil((points.max(axis=0) + margin - lo) / res).astype(int) + 1
-    near = np.zeros((shape[1], shape[0]))
-    _loops.splat_gaussians(near, np.ascontiguousarray(points, dtype=np.float64),
-                           float(lo[0]), float(lo[1]), res, cfg.field_sigma_m, reach)
-    grid = np.log1p((1.0 - eps) / eps * near)  # log((ε + (1 − ε) f) / ε)
-    return LogField(grid, lo, res, -math.log(eps))
+    lo, hi = points.min(axis=0) - margin, points.max(axis=0) + margin
+    if field is not None:
+        top = field.origin + res * (np.array(field.grid.shape[::-1]) - 1)  # last cell's centre
+        if np.all(lo >= field.origin) and np.all(hi <= top):
+            lo = None  # it fits
+        else:
+            lo = np.minimum(lo, field.origin) - GROW_SLACK_M
+            hi = np.maximum(hi, top) + GROW_SLACK_M
+    if lo is not None:
+        lo = np.floor(lo / res) * res  # on a lattice of the frame
+        cols, rows = np.ceil((hi - lo) / res - 1e-9).astype(int) + 1
+        grid = np.zeros((rows, cols))
+        if field is not None:  # the old table, in its place on the lattice
+            c, r = np.rint((field.origin - lo) / res).astype(int)
+            grid[r:r + field.grid.shape[0], c:c + field.grid.shape[1]] = field.grid
+        field = LogField(grid, lo, res, -math.log(eps))
+    assert field is not None
+    _loops.splat_gaussians(field.grid, np.ascontiguousarray(points, dtype=np.float64),
+                           float(field.origin[0]), float(field.origin[1]), res,
+                           cfg.field_sigma_m, reach, (1.0 - eps) / eps)
+    return field
+
+
+GROW_SLACK_M = 3.0
+
+
+def sampled_walls(points: np.ndarray, spacing: float, max_gap: float = 2.0,
+                  max_bend_deg: float = 10.0) -> np.ndarray:
+    """A scan's end points (N×2, in beam order) and points every ``spacing`` metres on the
+    walls between them: two neighbouring end points are joined where they are at most
+    ``max_gap`` apart and the segment between them runs on within ``max_bend_deg`` of its
+    neighbour before or after (a wall seen at a grazing angle, whose end points lie far
+    apart; not the jump from an object's edge to the wall behind it). A table of the end
+    points alone would score a wall as a string of beads, and a robot driving along it
+    would match best standing still."""
+    if len(points) < 3:
+        return points
+    d = np.diff(points, axis=0)
+    length = np.hypot(d[:, 0], d[:, 1])
+    heading = np.arctan2(d[:, 1], d[:, 0])
+    bend = np.abs(np.remainder(np.diff(heading) + math.pi, math.tau) - math.pi)
+    straight = bend <= math.radians(max_bend_deg)
+    runs_on = np.zeros(len(d), bool)
+    runs_on[:-1] |= straight
+    runs_on[1:] |= straight
+    joined = np.flatnonzero(runs_on & (length <= max_gap) & (length > spacing))
+    if len(joined) == 0:
+        return points
+    counts = np.floor(length[joined] / spacing).astype(int)  # points inside each segment
+    seg = np.repeat(joined, counts)
+    frac = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + 1.0) / (
+        np.repeat(counts, counts) + 1.0)
+    return np.concatenate([points, points[seg] + frac[:, None] * d[seg]])
 
 
 def angle_step(points: np.ndarray, resolution: float) -> float:

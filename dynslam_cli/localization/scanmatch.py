@@ -26,7 +26,14 @@ import numpy as np
 from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex
-from dynslam_cli.localization.correlative import CorrelativeConfig, LogField, log_field, search
+from dynslam_cli.localization.correlative import (
+    CorrelativeConfig,
+    LogField,
+    log_field,
+    sampled_walls,
+    search,
+    with_points,
+)
 from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D, Scan
 
@@ -42,6 +49,9 @@ RECOVERY_TURNS_DEG = (-30.0, -20.0, -10.0, 10.0, 20.0, 30.0)
 # ICP may move a correlative match this far (χ², 3 dof, 1%) under the match's covariance.
 REFINE_CHI2 = 11.34
 MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations from its start
+# The correlative table is made anew from the local map's key scans after this many new ones
+# (between, each is added to it): a table of 64 key scans costs as much as matching ten scans.
+REBUILD_KEYS = 16
 
 
 @dataclass(frozen=True)
@@ -168,24 +178,37 @@ class LocalMap:
         self.reference: tuple[PointIndex, np.ndarray] | None = None
         self._points = np.zeros((0, 2))
         self._field: LogField | None = None
+        self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
+        self._fresh: list[np.ndarray] = []  # key scans not in the field yet
+        self._stale = 0  # key scans added to the field since it was made anew
 
     def add(self, pose: Pose2D, points: np.ndarray) -> None:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
         self._keys.append(transform_points(pose, points))
+        self._walls.append(transform_points(pose, sampled_walls(
+            points, self._cfg.correlative.resolution_m / 2)))
+        self._fresh.append(self._walls[-1])
         pts = np.concatenate(self._keys)
         if len(pts) < 20:
             self.reference = None
             return
         self._points = pts[thin(pts, self._cfg.local_map_cell_m)]
-        self._field = None
         index = PointIndex(self._points)
         self.reference = (index, index.normals(self._cfg.normal_neighbours))
 
     def field(self) -> LogField:
-        """The correlative search's lookup table of the local map (made when first asked
-        after a key scan)."""
-        if self._field is None:
-            self._field = log_field(self._points, self._cfg.correlative)
+        """The correlative search's lookup table of the local map. Made anew from the local
+        map's points every REBUILD_KEYS key scans (when first asked after them); between,
+        each new key scan's points are added to it, and the key scans that left the local
+        map stay in it."""
+        cfg = self._cfg.correlative
+        if self._field is None or self._stale >= REBUILD_KEYS:
+            self._field = log_field(np.concatenate(self._walls), cfg)
+            self._stale = 0
+        elif self._fresh:
+            self._field = with_points(self._field, np.concatenate(self._fresh), cfg)
+            self._stale += len(self._fresh)
+        self._fresh = []
         return self._field
 
 
