@@ -194,3 +194,61 @@ def test_walls_between_far_end_points_are_sampled_but_not_across_an_edge():
     edge = np.array([[1.0, 0.0], [1.0, 0.1], [1.0, 0.2], [3.0, 0.3], [3.0, 0.4], [3.0, 0.5]])
     across = sampled_walls(edge, 0.025)
     assert not np.any((across[:, 0] > 1.01) & (across[:, 0] < 2.99))  # object, then wall
+
+
+def test_a_walker_in_the_scan_does_not_pull_the_match():
+    """A person crossing 1.5 m in front of the robot covers a tenth of the scan: those end
+    points land where the submap has no wall and count as outliers, so the match is where
+    it would be without them."""
+    from .test_loopclosure import ROOM
+
+    def scan(pose: Pose2D, odom: Pose2D, walker: tuple[float, float] | None, k: int) -> Scan:
+        discs = np.array([[*walker, 0.25]]) if walker else np.zeros((0, 3))
+        r, _ = ray_cast(pose, ANGLES, ROOM, np.zeros(len(ROOM), int), discs,
+                        np.zeros(len(discs), int), 20.0)
+        return Scan(0.1 * k, r, ANGLES, 20.0, odom)
+
+    matcher = ScanMatcher(MatchConfig(method="correlative"), NoiseModel())
+    estimate, odom, previous = Pose2D(), Pose2D(), Pose2D()
+    for k in range(16):
+        true = Pose2D(0.02 * k, 0.0, math.radians(0.5 * k))
+        step = relative(previous, true)
+        odom = compose(odom, Pose2D(step.x * 1.1, step.y + 0.003, step.theta * 1.3))
+        previous = true
+        walker = (true.x + 1.5, -1.0 + 0.15 * (k - 4)) if k >= 4 else None
+        inc, _, _ = matcher.increment(scan(true, odom, walker, k))
+        estimate = compose(estimate, inc)
+        err = relative(true, estimate)
+        assert math.hypot(err.x, err.y) < 0.015 and abs(err.theta) < math.radians(0.3), k
+
+
+def test_the_odometrys_noise_is_learned_from_the_log():
+    """Increments that match the odometry to a millimetre teach a tenth of the model's
+    noise; increments 2.5 times the model's noise off teach 2.5 times the noise."""
+    from dynslam_cli.localization.correlative import ODOMETRY_NOISE, OdometryScale
+
+    rng = np.random.default_rng(5)
+    good, poor = OdometryScale(), OdometryScale()
+    for _ in range(400):
+        wheel = Pose2D(0.1, 0.0, math.radians(2.0))
+        st, sr = good.std(wheel, ODOMETRY_NOISE)
+        good.learn(Pose2D(0.1 + rng.normal(0, 0.001), rng.normal(0, 0.001), wheel.theta),
+                   wheel, ODOMETRY_NOISE)
+        st, sr = OdometryScale().std(wheel, ODOMETRY_NOISE)
+        poor.learn(Pose2D(0.1 + rng.normal(0, 2.5 * st), rng.normal(0, 2.5 * st),
+                          wheel.theta + rng.normal(0, 2.5 * sr)), wheel, ODOMETRY_NOISE)
+    assert good.scale == pytest.approx((0.1, 0.1))
+    assert poor.scale == pytest.approx((2.5, 2.5), rel=0.25)
+    stated = OdometryScale(enabled=False)  # learn_odometry = false: the model as stated
+    stated.learn(Pose2D(0.5, 0.0, 0.0), Pose2D(0.1, 0.0, 0.0), ODOMETRY_NOISE)
+    assert stated.scale == (1.0, 1.0)
+
+
+def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
+    from dynslam_cli.localization.scanmatch import fused_covariance, fused_pose
+
+    information = np.diag([0.0, 1e6, 1e6])  # a corridor along x: nothing along it
+    cov = fused_covariance(information, (0.01, 0.01, 0.01))
+    pose = fused_pose(Pose2D(0.3, 0.02, 0.01), information, Pose2D(0.1, 0.0, 0.0), cov)
+    assert pose.x == pytest.approx(0.1)  # along: the odometry's
+    assert pose.y == pytest.approx(0.02, abs=2e-4) and pose.theta == pytest.approx(0.01, abs=2e-4)

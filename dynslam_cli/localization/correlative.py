@@ -30,7 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from dynslam_cli.localization import _loops
-from dynslam_cli.localization.ekf import NoiseModel
+from dynslam_cli.localization.ekf import NoiseModel, motion_std
 from dynslam_cli.types import Pose2D
 
 ODOMETRY_NOISE = NoiseModel(trans_per_m=0.1, rot_per_rad=0.2, rot_per_m_deg=5.0,
@@ -55,6 +55,10 @@ class CorrelativeConfig:
     (Kümmerle et al. relations against the raw odometry: 2.5° rms over 0.45 m with 2° of
     turn, 4.4° over 11°, 4-8% of the distance): five times the EKF's default rotation
     noise."""
+    learn_odometry: bool = True
+    """Scale the odometry's noise model by what the log shows (OdometryScale): a robot whose
+    odometry is better than the model (a simulator's, a well-calibrated one) is followed
+    more closely, one whose odometry is worse is trusted less."""
     odometry_glitch: float = 1e-3
     """The odometry's prior never falls below this share of its peak (slips, glitches)."""
     window_sigmas: float = 3.0
@@ -65,6 +69,46 @@ class CorrelativeConfig:
     max_window_m: float = 1.0
     max_window_deg: float = 60.0
     """... and at most this."""
+
+
+class OdometryScale:
+    """How far the wheel odometry's increments fall from the matched ones, in the standard
+    deviations of its stated noise model, learned from the log as it is read: the mean
+    squared error (each clipped at 3σ, so that a glitch teaches little) over the matched
+    scans so far, forgetting over the last LEARN_SCANS; translation and rotation apart. The
+    model's standard deviations are scaled by its square root, between SCALE_RANGE's ends.
+    With perfect odometry the matches' own errors (a few millimetres) are all that is left,
+    so the odometry is trusted about ten times as much as the model says."""
+
+    LEARN_SCANS = 200
+    SCALE_RANGE = (0.1, 3.0)
+
+    def __init__(self, enabled: bool = True) -> None:
+        self.enabled = enabled
+        self._mean_sq = [1.0, 1.0]
+        self._count = 0
+        self.scale = (1.0, 1.0)
+
+    def std(self, wheel: Pose2D, model: NoiseModel) -> tuple[float, float]:
+        """The scaled standard deviations (translation m, rotation rad) of a wheel
+        increment."""
+        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, model)
+        return st * self.scale[0], sr * self.scale[1]
+
+    def learn(self, matched: Pose2D, wheel: Pose2D, model: NoiseModel) -> None:
+        """One matched increment and the wheel odometry's, both in the previous robot
+        frame."""
+        if not self.enabled:
+            return
+        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, model)
+        z = (((matched.x - wheel.x) ** 2 + (matched.y - wheel.y) ** 2) / (2.0 * st * st),
+             math.remainder(matched.theta - wheel.theta, math.tau) ** 2 / (sr * sr))
+        self._count += 1
+        rate = max(1.0 / self._count, 1.0 / self.LEARN_SCANS)
+        lo, hi = self.SCALE_RANGE
+        for k in range(2):
+            self._mean_sq[k] += rate * (min(z[k], 9.0) - self._mean_sq[k])
+        self.scale = tuple(min(max(math.sqrt(m), lo), hi) for m in self._mean_sq)
 
 
 class Posterior(NamedTuple):

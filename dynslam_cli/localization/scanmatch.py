@@ -29,6 +29,7 @@ from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.correlative import (
     CorrelativeConfig,
     LogField,
+    OdometryScale,
     log_field,
     sampled_walls,
     search,
@@ -159,6 +160,27 @@ def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> n
     return np.linalg.inv(information + np.diag([1.0 / max(s, 1e-6) ** 2 for s in prior_sigma]))
 
 
+def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D, cov: np.ndarray
+               ) -> Pose2D:
+    """The match fused with the odometry's pose by their information: x_m + Σ Ω_o (x_o −
+    x_m), with Σ = (Ω_m + Ω_o)⁻¹ the fused covariance (``cov``) and Ω_o = Σ⁻¹ − Ω_m the
+    odometry's. Where the scan constrains nothing (along a corridor) the odometry's value
+    remains; where it constrains everything, the match's."""
+    d = np.array([odometry.x - match.x, odometry.y - match.y,
+                  math.remainder(odometry.theta - match.theta, math.tau)])
+    step = cov @ ((np.linalg.inv(cov) - information) @ d)
+    return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2])
+
+
+def _agree(match: Pose2D, information: np.ndarray, odometry: Pose2D, cov: np.ndarray) -> bool:
+    """Whether the match and the odometry's pose agree within REFINE_CHI2 (χ², 3 dof) under
+    their combined covariance, (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m (Σ the fused ``cov``; no
+    inverse of a match that leaves a direction free)."""
+    d = np.array([odometry.x - match.x, odometry.y - match.y,
+                  math.remainder(odometry.theta - match.theta, math.tau)])
+    return float(d @ (information - information @ cov @ information) @ d) <= REFINE_CHI2
+
+
 def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
     """A pose covariance (matcher frame) as the covariance of the increment from
     ``previous``, in the previous robot frame (its rotation undone)."""
@@ -185,9 +207,10 @@ class LocalMap:
     def add(self, pose: Pose2D, points: np.ndarray) -> None:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
         self._keys.append(transform_points(pose, points))
-        self._walls.append(transform_points(pose, sampled_walls(
-            points, self._cfg.correlative.resolution_m / 2)))
-        self._fresh.append(self._walls[-1])
+        if self._cfg.method == "correlative":  # (ICP matches against the points alone)
+            self._walls.append(transform_points(pose, sampled_walls(
+                points, self._cfg.correlative.resolution_m / 2)))
+            self._fresh.append(self._walls[-1])
         pts = np.concatenate(self._keys)
         if len(pts) < 20:
             self.reference = None
@@ -231,6 +254,7 @@ class ScanMatcher:
         self._key_pose: Pose2D | None = None  # ... and of the last key scan
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
+        self._odometry = OdometryScale(cfg.correlative.learn_odometry)
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
         """Motion since the previous scan, in the previous robot frame, where it came from,
@@ -252,6 +276,8 @@ class ScanMatcher:
         inc = relative(self._pose, pose)
         if cov is not None:
             cov = increment_covariance(cov, self._pose)
+        if source == "matched" and cfg.method == "correlative":
+            self._odometry.learn(inc, wheel, cfg.correlative.odometry)
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
@@ -305,7 +331,7 @@ class ScanMatcher:
         cfg = self.cfg
         if len(pts) < 20:
             return guess, "fallback", None
-        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, cfg.correlative.odometry)
+        st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative,
                       cfg.min_inliers)
         source = "matched"
@@ -326,7 +352,10 @@ class ScanMatcher:
                       math.remainder(refined.pose.theta - post.pose.theta, math.tau)])
         if (refined.share >= cfg.min_inliers and refined.rms <= cfg.max_rms_m
                 and d @ np.linalg.solve(post.cov, d) <= REFINE_CHI2):
-            return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
+            cov = fused_covariance(refined.information, (st, st, sr))
+            if source == "matched" and _agree(refined.pose, refined.information, guess, cov):
+                return fused_pose(refined.pose, refined.information, guess, cov), source, cov
+            return refined.pose, source, cov
         return post.pose, source, post.cov
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
