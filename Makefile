@@ -41,11 +41,12 @@ bench: install
 	$(BIN)/python bench/run.py --runs 5
 
 # Accuracy of every built-in world, with and without the paper's components, and of the
-# raw benchmark logs against their relations, and of the Radish corrected logs under drifting
-# odometry of our own (perfect, moderate, harsh).
+# raw benchmark logs against their relations (and their spread over perturbed copies), and
+# of the Radish corrected logs under drifting odometry of our own (perfect, moderate, harsh).
 accuracy: install
 	$(BIN)/python bench/accuracy.py
 	$(BIN)/python bench/relations.py
+	$(BIN)/python bench/stability.py
 	$(BIN)/python bench/radish.py
 
 clean:

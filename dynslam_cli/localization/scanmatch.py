@@ -208,8 +208,9 @@ class LocalMap:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
         self._keys.append(transform_points(pose, points))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
-            self._walls.append(transform_points(pose, sampled_walls(
-                points, self._cfg.correlative.resolution_m / 2)))
+            half = self._cfg.correlative.resolution_m / 2
+            walls = transform_points(pose, sampled_walls(points, half))
+            self._walls.append(walls[thin(walls, half)])
             self._fresh.append(self._walls[-1])
         pts = np.concatenate(self._keys)
         if len(pts) < 20:
@@ -226,7 +227,8 @@ class LocalMap:
         map stay in it."""
         cfg = self._cfg.correlative
         if self._field is None or self._stale >= REBUILD_KEYS:
-            self._field = log_field(np.concatenate(self._walls), cfg)
+            walls = np.concatenate(self._walls)
+            self._field = log_field(walls[thin(walls, cfg.resolution_m / 2)], cfg)
             self._stale = 0
         elif self._fresh:
             self._field = with_points(self._field, np.concatenate(self._fresh), cfg)
