@@ -67,19 +67,29 @@ def run(name: str, mode: str, config: Config, tmp: Path, log: Path | None = None
             "relations": score["relations"], "seconds": seconds, "published": PUBLISHED[rel]}
 
 
+def add_config_args(ap: argparse.ArgumentParser, out: str) -> None:
+    """--method, --config and --out (default bench/``out``)."""
+    ap.add_argument("--method", choices=("icp", "correlative"), default=None,
+                    help="[match] method (default: the configuration's)")
+    ap.add_argument("--config", type=Path, help="a TOML file the runs start from")
+    ap.add_argument("--out", type=Path, default=ROOT / "bench" / out)
+
+
+def base_config(args: argparse.Namespace) -> Config:
+    """The configuration the runs start from (exits if the data sets are missing)."""
+    if not DATA.is_dir():
+        sys.exit(f"no data sets at {DATA}")
+    return load_config(args.config,
+                       {"match": {"method": args.method}} if args.method else None)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--modes", default="local,full")
     ap.add_argument("--logs", default=",".join(LOGS))
-    ap.add_argument("--method", choices=("icp", "correlative"), default=None,
-                    help="[match] method (default: the configuration's)")
-    ap.add_argument("--config", type=Path, help="a TOML file the runs start from")
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "relations.json")
+    add_config_args(ap, "relations.json")
     args = ap.parse_args()
-    if not DATA.is_dir():
-        sys.exit(f"no data sets at {DATA}")
-    config = load_config(args.config,
-                         {"match": {"method": args.method}} if args.method else None)
+    config = base_config(args)
     rows = []
     print(f"{'log':10} {'mode':5} {'trans m':>8} {'rot deg':>8} {'matched':>9} {'s':>6}   "
           f"published: scan matching / graph mapping / Cartographer (m)")

@@ -25,9 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from relations import DATA, LOGS, ROOT, run
-
-from dynslam_cli.config import load_config
+from relations import DATA, LOGS, add_config_args, base_config, run
 
 RANGE_M = 1e-3
 POSE_M = 1e-5
@@ -66,14 +64,9 @@ def main() -> None:
     ap.add_argument("--logs", default="mit,intel")
     ap.add_argument("--modes", default="full")
     ap.add_argument("--copies", type=int, default=5)
-    ap.add_argument("--method", choices=("icp", "correlative"), default=None)
-    ap.add_argument("--config", type=Path)
-    ap.add_argument("--out", type=Path, default=ROOT / "bench" / "stability.json")
+    add_config_args(ap, "stability.json")
     args = ap.parse_args()
-    if not DATA.is_dir():
-        sys.exit(f"no data sets at {DATA}")
-    config = load_config(args.config,
-                         {"match": {"method": args.method}} if args.method else None)
+    config = base_config(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.logs.split(","):
