@@ -359,22 +359,30 @@ class LogWindow(ReaderFilter):
     """A reader's scans from ``start_s`` to ``end_s`` seconds after its first scan, at most
     ``max_scans`` of them; reading stops at the end of the window."""
 
-    def __init__(self, reader: LogReader, options: ReaderOptions) -> None:
+    def __init__(self, reader: LogReader, options: ReaderOptions, name: str) -> None:
         super().__init__(reader)
+        self.name = name
         self.start = options.start_s if options.start_s is not None else -math.inf
         self.end = options.end_s if options.end_s is not None else math.inf
         self.max_scans = options.max_scans
 
     def scans(self) -> Iterator[Scan]:
-        first, n = None, 0
+        """The window's scans; none (the window starts after the log ends, or falls between
+        two scans) is an error that says the log's span."""
+        first, n, t = None, 0, 0.0
         for scan in self.reader.scans():
             first = scan.stamp if first is None else first
             t = scan.stamp - first
             if t > self.end or (self.max_scans is not None and n >= self.max_scans):
-                return
+                break
             if t >= self.start:
                 n += 1
                 yield scan
+        if n == 0 and first is not None:
+            window = (f"from {self.start:g} s" if self.end == math.inf
+                      else f"from {max(self.start, 0.0):g} to {self.end:g} s")
+            raise InputError(self.name, f"no scans {window} into the log (its scans span "
+                             f"{'at least ' if t > self.end else ''}{t:.1f} s)")
 
 
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
@@ -383,7 +391,7 @@ def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
     reader = ScanGuard(reader, name)
     if options.start_s is None and options.end_s is None and options.max_scans is None:
         return reader
-    return LogWindow(reader, options)
+    return LogWindow(reader, options, name)
 
 
 class OdometryBuffer:

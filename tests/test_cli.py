@@ -294,3 +294,12 @@ def test_every_option_of_every_command_has_help(cli):
             if isinstance(param, click.Option) and param.name != "help":
                 assert param.help, f"{name} {param.opts} has no help"
     assert "cov_xx,cov_xy,cov_yy" in cli("process", "--help").stdout
+
+
+def test_a_window_past_the_logs_end_is_an_error_that_says_its_span(cli, tmp_path):
+    """--start beyond the last scan once wrote a 0×0 static.pgm and exited 0."""
+    r = cli("process", SAMPLE, "-o", tmp_path / "late", "--start", "500")
+    assert r.exit_code == 1
+    assert "no scans from 500 s into the log (its scans span 90.0 s)" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "late").exists()
