@@ -303,8 +303,8 @@ def _report_warnings(name: str, stats: Any) -> None:
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=os.cpu_count() or 1,
               show_default=True, help="Local worker processes.")
 @click.option("--scheduler", metavar="tcp://HOST:PORT",
-              help="Run on this Dask distributed scheduler (pip install 'dynslam[dask]'); "
-                   "OUTROOT must be storage the workers share.")
+              help="Run on this Dask distributed scheduler (Dask: pip install '.[dask]' in "
+                   "dynslam's source folder); OUTROOT must be storage the workers share.")
 @click.option("--force", is_flag=True, help="Redo logs whose output is already complete.")
 @reader_options
 @run_options
@@ -369,9 +369,12 @@ def _dask_client(address: str) -> Any:
     try:
         from dask.distributed import Client
     except ImportError:
-        raise DynslamError("--scheduler needs Dask: pip install 'dynslam[dask]'") from None
+        raise DynslamError("--scheduler needs Dask: pip install '.[dask]' in dynslam's source "
+                           "folder (or the wheel with its extra: 'dynslam-*.whl[dask]')") from None
     try:
         return Client(address, timeout="10s")
+    except ValueError as e:  # an address Dask cannot parse (tcp://host without its port)
+        raise DynslamError(f"--scheduler {address}: {e}; give tcp://HOST:PORT") from None
     except (OSError, TimeoutError) as e:
         raise DynslamError(f"cannot reach the Dask scheduler at {address}: {e}") from None
 

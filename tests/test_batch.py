@@ -172,3 +172,12 @@ def test_unreachable_scheduler_is_a_clear_error(logs, cli, tmp_path):
     r = cli("batch", logs / "a", "-o", tmp_path / "o", "--scheduler",
             f"tcp://127.0.0.1:{_free_port()}")
     assert r.exit_code == 1 and "cannot reach the Dask scheduler" in r.stderr
+
+
+def test_a_scheduler_address_without_its_port_is_one_line(logs, cli, tmp_path):
+    """Dask's ValueError for tcp://HOST (no port) was a traceback (issue 38, item 8)."""
+    pytest.importorskip("dask.distributed")
+    r = cli("batch", logs / "a", "-o", tmp_path / "o", "--scheduler", "tcp://localhost")
+    assert r.exit_code == 1
+    assert "--scheduler tcp://localhost" in r.stderr and "tcp://HOST:PORT" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
