@@ -119,6 +119,29 @@ run_options = _options(  # what to compute and which part of the log: process, b
 )
 
 
+# The configuration keys the command-line options set: a value the configuration refuses is
+# the option's (a usage error, exit 2), not the configuration file's.
+OPTION_KEYS = {"map.resolution_m": "--resolution", "laser.fov_deg": "--flaser-fov",
+               "record.period_s": "--record-period", "record.file": "--record"}
+
+
+def _load(config_file: Path | None, overrides: dict[str, dict[str, Any]]) -> Any:
+    """The effective configuration; an override out of range is a usage error that names
+    its option."""
+    from dynslam_cli.config import load_config
+    from dynslam_cli.errors import ConfigError
+
+    try:
+        return load_config(config_file, overrides)
+    except ConfigError as e:
+        for key, option in OPTION_KEYS.items():
+            section, name = key.split(".")
+            if name in overrides.get(section, {}) and str(e).startswith(key):
+                raise click.BadParameter(str(e).removeprefix(key).strip(" :"),
+                                         param_hint=f"'{option}'") from None
+        raise
+
+
 def _overrides(resolution: float | None, flaser_fov: float | None, no_dynamic: bool,
                localization: str | None, record: str | None = None,
                record_period: float | None = None) -> dict[str, dict[str, Any]]:
@@ -221,11 +244,10 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
                            record_period)
 
     def work() -> None:
-        from dynslam_cli.config import load_config
         from dynslam_formats import ReaderOptions
         from dynslam_formats.outdir import check_target
 
-        config = load_config(config_file, overrides)
+        config = _load(config_file, overrides)
         check_target(target, force, log)
         options = ReaderOptions(**_reader(laser, topic, odom_topic, start_s, end_s, max_scans),
                                 fov_deg=config.laser.fov_deg)
@@ -339,9 +361,8 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
 
     def work() -> None:
         from dynslam_cli.batch import expand_logs, read_manifest, run_batch, run_dask, run_local
-        from dynslam_cli.config import load_config
 
-        load_config(config_file, overrides)  # fail early
+        _load(config_file, overrides)  # fail early
         rows = [{"log": log, "config": None, "truth": None, "relations": None}
                 for log in expand_logs(logs)]
         if manifest is not None:

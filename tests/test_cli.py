@@ -303,3 +303,17 @@ def test_a_window_past_the_logs_end_is_an_error_that_says_its_span(cli, tmp_path
     assert "no scans from 500 s into the log (its scans span 90.0 s)" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "late").exists()
+
+
+def test_an_option_out_of_range_is_a_usage_error_naming_it(cli, tmp_path):
+    """--resolution 0.001 passed click's own check and failed later as a configuration key
+    (exit 1, 'map.resolution_m'); the same value from a TOML file stays that file's error."""
+    for command in ("process", "batch"):
+        r = cli(command, SAMPLE, "-o", tmp_path / command, "--resolution", "0.001")
+        assert r.exit_code == 2, r.stderr
+        assert "Invalid value for '--resolution': must be in [0.005, 10] m" in r.stderr
+        assert not (tmp_path / command).exists()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[map]\nresolution_m = 0.001\n")
+    r = cli("process", SAMPLE, "-o", tmp_path / "f", "--config", bad)
+    assert r.exit_code == 1 and "map.resolution_m must be in [0.005, 10] m" in r.stderr
