@@ -6,7 +6,11 @@ BIN := $(VENV)/bin
 
 install: $(BIN)/dynslam
 
+# The interpreter is checked first (one line naming PY=), and a venv made by another Python
+# (an earlier try with an older one) is made anew rather than reused.
 $(BIN)/dynslam: pyproject.toml setup.py $(wildcard dynslam_cli/*/*.pyx)
+	@$(PY) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "dynslam needs Python 3.11 or newer; $(PY) is " + sys.version.split()[0] + ": make install PY=python3.11 (or newer)")'
+	@if [ -x $(BIN)/python ] && [ "$$($(BIN)/python -c 'import sys; print(sys.version)')" != "$$($(PY) -c 'import sys; print(sys.version)')" ]; then echo "$(VENV) was made by another Python: making it anew"; rm -rf $(VENV); fi
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
