@@ -97,7 +97,8 @@ def test_a_map_beyond_its_bound_is_one_line(cli, tmp_path):
     assert r.stderr.count("\n") == 1 and "map.max_extent_m = 2000 m" in r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["jump.log"]
     r = cli("process", SAMPLE, "-o", tmp_path / "fine", "--resolution", "1e-6", "-q")
-    assert r.exit_code == 1 and "map.resolution_m must be in [0.005, 10] m" in r.stderr
+    assert r.exit_code == 2  # the option's value: a usage error naming it
+    assert "Invalid value for '--resolution': must be in [0.005, 10] m" in r.stderr
 
 
 def test_output_into_a_dangling_symlink_is_refused(cli, tmp_path):
