@@ -27,7 +27,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from dynslam_cli.config import Config, load_config  # noqa: E402
+from relations import add_config_args, base_config  # noqa: E402
+
+from dynslam_cli.config import Config  # noqa: E402
 from dynslam_cli.evaluate import (  # noqa: E402
     MapThresholds,
     score_changes,
@@ -100,12 +102,9 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
     ap.add_argument("--modes", default=",".join(MODES))
-    ap.add_argument("--method", choices=("icp", "correlative"), default=None)
-    ap.add_argument("--config", type=Path, help="a TOML file every run starts from")
-    ap.add_argument("--out", default=str(ROOT / "bench" / "accuracy.json"))
+    add_config_args(ap, "accuracy.json")
     args = ap.parse_args()
-    base = load_config(args.config,
-                       {"match": {"method": args.method}} if args.method else None)
+    base = base_config(args)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for world in args.worlds.split(","):
@@ -126,7 +125,7 @@ def main() -> None:
                           fmt(s["recall"]), fmt(s["ghost_rate"]), fmt(dm["precision"]),
                           f"{mv['detected']}/{mv['of']}", str(mv["detected_static"]),
                           f"{vc['cleared']}/{vc['of']}", *changes(r["changes"]))))
-    Path(args.out).write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
+    args.out.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
 
 
 if __name__ == "__main__":

@@ -76,9 +76,7 @@ def add_config_args(ap: argparse.ArgumentParser, out: str) -> None:
 
 
 def base_config(args: argparse.Namespace) -> Config:
-    """The configuration the runs start from (exits if the data sets are missing)."""
-    if not DATA.is_dir():
-        sys.exit(f"no data sets at {DATA}")
+    """The configuration the runs start from: ``--config``'s, with ``--method``."""
     return load_config(args.config,
                        {"match": {"method": args.method}} if args.method else None)
 
@@ -89,6 +87,8 @@ def main() -> None:
     ap.add_argument("--logs", default=",".join(LOGS))
     add_config_args(ap, "relations.json")
     args = ap.parse_args()
+    if not DATA.is_dir():
+        sys.exit(f"no data sets at {DATA}")
     config = base_config(args)
     rows = []
     print(f"{'log':10} {'mode':5} {'trans m':>8} {'rot deg':>8} {'matched':>9} {'s':>6}   "

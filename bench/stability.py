@@ -66,6 +66,8 @@ def main() -> None:
     ap.add_argument("--copies", type=int, default=5)
     add_config_args(ap, "stability.json")
     args = ap.parse_args()
+    if not DATA.is_dir():
+        sys.exit(f"no data sets at {DATA}")
     config = base_config(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

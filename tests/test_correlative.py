@@ -245,10 +245,12 @@ def test_the_odometrys_noise_is_learned_from_the_log():
 
 
 def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
-    from dynslam_cli.localization.scanmatch import fused_covariance, fused_pose
+    from dynslam_cli.localization.scanmatch import fused_pose
 
     information = np.diag([0.0, 1e6, 1e6])  # a corridor along x: nothing along it
-    cov = fused_covariance(information, (0.01, 0.01, 0.01))
-    pose = fused_pose(Pose2D(0.3, 0.02, 0.01), information, Pose2D(0.1, 0.0, 0.0), cov)
+    fused = fused_pose(Pose2D(0.3, 0.02, 0.01), information, Pose2D(0.1, 0.0, 0.0),
+                       (0.01, 0.01, 0.01))
+    assert fused is not None
+    pose, _ = fused
     assert pose.x == pytest.approx(0.1)  # along: the odometry's
     assert pose.y == pytest.approx(0.02, abs=2e-4) and pose.theta == pytest.approx(0.01, abs=2e-4)

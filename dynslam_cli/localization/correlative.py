@@ -137,28 +137,6 @@ class LogField:
     peak: float  # the value on a wall: a score's 1
 
 
-def gaussian_kernel(cells: np.ndarray, resolution: float, sigma: float) -> np.ndarray:
-    """exp(−d²/2σ²) over the square of cell offsets ``cells`` (each axis; d in metres)."""
-    d = cells * resolution
-    return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / sigma ** 2)
-
-
-def splatted(points: np.ndarray, kernels: tuple[np.ndarray, ...], resolution: float
-             ) -> tuple[list[np.ndarray], np.ndarray]:
-    """One grid per kernel, each cell the max of the kernel placed on every point's cell
-    (N×2 points, square kernels of odd width), with room for the widest kernel around the
-    points; and the map coordinates of cell (0, 0)'s centre."""
-    margin = (max(k.shape[0] for k in kernels) // 2 + 1) * resolution
-    lo = points.min(axis=0) - margin
-    shape = np.ceil((points.max(axis=0) + margin - lo) / resolution).astype(int) + 1
-    cols, rows = np.floor((points - lo) / resolution + 0.5).astype(np.intp).T.copy()
-    grids = []
-    for kernel in kernels:
-        grids.append(np.zeros((shape[1], shape[0])))
-        _loops.splat_max(grids[-1], rows, cols, kernel)
-    return grids, lo
-
-
 def log_field(points: np.ndarray, cfg: CorrelativeConfig) -> LogField:
     """The lookup table of the submap ``points`` (N×2, its frame)."""
     return with_points(None, points, cfg)
@@ -173,22 +151,17 @@ def with_points(field: LogField | None, points: np.ndarray, cfg: CorrelativeConf
     reach = max(1, math.ceil(4.0 * cfg.field_sigma_m / res))
     margin = (reach + 1) * res
     lo, hi = points.min(axis=0) - margin, points.max(axis=0) + margin
-    if field is not None:
+    if field is None:
+        grid, origin = _grid_over(lo, hi, res)
+        field = LogField(grid, origin, res, -math.log(eps))
+    else:
         top = field.origin + res * (np.array(field.grid.shape[::-1]) - 1)  # last cell's centre
-        if np.all(lo >= field.origin) and np.all(hi <= top):
-            lo = None  # it fits
-        else:
-            lo = np.minimum(lo, field.origin) - GROW_SLACK_M
-            hi = np.maximum(hi, top) + GROW_SLACK_M
-    if lo is not None:
-        lo = np.floor(lo / res) * res  # on a lattice of the frame
-        cols, rows = np.ceil((hi - lo) / res - 1e-9).astype(int) + 1
-        grid = np.zeros((rows, cols))
-        if field is not None:  # the old table, in its place on the lattice
-            c, r = np.rint((field.origin - lo) / res).astype(int)
+        if np.any(lo < field.origin) or np.any(hi > top):
+            grid, origin = _grid_over(np.minimum(lo, field.origin) - GROW_SLACK_M,
+                                      np.maximum(hi, top) + GROW_SLACK_M, res)
+            c, r = np.rint((field.origin - origin) / res).astype(int)  # the old table's place
             grid[r:r + field.grid.shape[0], c:c + field.grid.shape[1]] = field.grid
-        field = LogField(grid, lo, res, -math.log(eps))
-    assert field is not None
+            field = LogField(grid, origin, res, field.peak)
     _loops.splat_gaussians(field.grid, np.ascontiguousarray(points, dtype=np.float64),
                            float(field.origin[0]), float(field.origin[1]), res,
                            cfg.field_sigma_m, reach, (1.0 - eps) / eps)
@@ -196,6 +169,14 @@ def with_points(field: LogField | None, points: np.ndarray, cfg: CorrelativeConf
 
 
 GROW_SLACK_M = 3.0
+
+
+def _grid_over(lo: np.ndarray, hi: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
+    """An empty grid covering ``lo``–``hi`` (x, y), its cell (0, 0) on a lattice of the
+    frame; and that cell's centre."""
+    origin = np.floor(lo / res) * res
+    cols, rows = np.ceil((hi - origin) / res - 1e-9).astype(int) + 1
+    return np.zeros((rows, cols)), origin
 
 
 def sampled_walls(points: np.ndarray, spacing: float, max_gap: float = 2.0,

@@ -36,7 +36,6 @@ from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.cornerslam import EkfConfig
-from dynslam_cli.localization.correlative import gaussian_kernel, splatted
 from dynslam_cli.localization.ekf import motion_std
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
 from dynslam_cli.localization.scanmatch import MatchConfig, icp
@@ -130,14 +129,17 @@ def _field_kernels() -> tuple[np.ndarray, np.ndarray]:
     """The fine field around one occupied cell, exp(−d²/2σ²) out to FIELD_REACH_CELLS, and
     its max over the coarse pass's window (COARSE_CELLS + 1 cells square): the value at the
     window's cell nearest the centre, as the field falls with distance."""
+    def field(i: np.ndarray) -> np.ndarray:
+        d = i * FIELD_RES_M
+        return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / FIELD_SIGMA_M ** 2)
+
     h, w = FIELD_REACH_CELLS, COARSE_CELLS // 2
     wide = np.arange(-h - w, h + w + 1)
-    return (gaussian_kernel(np.arange(-h, h + 1), FIELD_RES_M, FIELD_SIGMA_M),
-            gaussian_kernel(np.sign(wide) * np.maximum(np.abs(wide) - w, 0), FIELD_RES_M,
-                            FIELD_SIGMA_M))
+    return field(np.arange(-h, h + 1)), field(np.sign(wide) * np.maximum(np.abs(wide) - w, 0))
 
 
 FINE_KERNEL, COARSE_KERNEL = _field_kernels()
+FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
 
 
 @dataclass
@@ -158,8 +160,16 @@ class LikelihoodField:
 
 
 def likelihood_field(points: np.ndarray) -> LikelihoodField:
-    (fine, coarse), lo = splatted(points, (FINE_KERNEL, COARSE_KERNEL), FIELD_RES_M)
-    return LikelihoodField(fine, coarse, lo, PointIndex(points))
+    lo = points.min(axis=0) - FIELD_MARGIN_M
+    hi = points.max(axis=0) + FIELD_MARGIN_M
+    shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
+    cols, rows = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T.copy()
+    fine = np.zeros((shape[1], shape[0]))
+    coarse = np.zeros((shape[1], shape[0]))
+    _loops.splat_max(fine, rows, cols, FINE_KERNEL)
+    _loops.splat_max(coarse, rows, cols, COARSE_KERNEL)
+    index = PointIndex(points)
+    return LikelihoodField(fine, coarse, lo, index)
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,

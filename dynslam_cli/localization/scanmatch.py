@@ -62,8 +62,8 @@ class MatchConfig:
     method: str = "icp"
     """"icp": point-to-line ICP from the odometry's guess, with retries from turned guesses
     where it fails. "correlative": the best pose of a window around the odometry's guess
-    on the local map's likelihood (its covariance from the window's posterior, fused with
-    the odometry's noise model; see dynslam_cli.localization.correlative), refined by ICP."""
+    on the local map's likelihood (see dynslam_cli.localization.correlative), refined by
+    ICP and fused with the odometry by their information."""
     max_range_m: float = 20.0
     """Readings beyond this are not matched."""
     subsample: int = 1
@@ -160,25 +160,25 @@ def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> n
     return np.linalg.inv(information + np.diag([1.0 / max(s, 1e-6) ** 2 for s in prior_sigma]))
 
 
-def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D, cov: np.ndarray
-               ) -> Pose2D:
-    """The match fused with the odometry's pose by their information: x_m + Σ Ω_o (x_o −
-    x_m), with Σ = (Ω_m + Ω_o)⁻¹ the fused covariance (``cov``) and Ω_o = Σ⁻¹ − Ω_m the
-    odometry's. Where the scan constrains nothing (along a corridor) the odometry's value
+def pose_difference(a: Pose2D, b: Pose2D) -> np.ndarray:
+    """a − b as (x, y, θ), the angle wrapped."""
+    return np.array([a.x - b.x, a.y - b.y, math.remainder(a.theta - b.theta, math.tau)])
+
+
+def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
+               prior_sigma: Sequence[float]) -> tuple[Pose2D, np.ndarray] | None:
+    """The match fused with the odometry's pose by their information, x_m + Σ Ω_o (x_o −
+    x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻², and Σ; None where the two
+    disagree beyond REFINE_CHI2 (χ², 3 dof) under their combined covariance
+    (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m (no inverse of a match that leaves a direction
+    free). Where the scan constrains nothing (along a corridor) the odometry's value
     remains; where it constrains everything, the match's."""
-    d = np.array([odometry.x - match.x, odometry.y - match.y,
-                  math.remainder(odometry.theta - match.theta, math.tau)])
-    step = cov @ ((np.linalg.inv(cov) - information) @ d)
-    return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2])
-
-
-def _agree(match: Pose2D, information: np.ndarray, odometry: Pose2D, cov: np.ndarray) -> bool:
-    """Whether the match and the odometry's pose agree within REFINE_CHI2 (χ², 3 dof) under
-    their combined covariance, (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m (Σ the fused ``cov``; no
-    inverse of a match that leaves a direction free)."""
-    d = np.array([odometry.x - match.x, odometry.y - match.y,
-                  math.remainder(odometry.theta - match.theta, math.tau)])
-    return float(d @ (information - information @ cov @ information) @ d) <= REFINE_CHI2
+    cov = fused_covariance(information, prior_sigma)
+    d = pose_difference(odometry, match)
+    if float(d @ (information - information @ cov @ information) @ d) > REFINE_CHI2:
+        return None
+    step = cov @ (d / np.maximum(np.asarray(prior_sigma, dtype=float), 1e-6) ** 2)
+    return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2]), cov
 
 
 def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
@@ -198,7 +198,6 @@ class LocalMap:
         self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
         self._cfg = cfg
         self.reference: tuple[PointIndex, np.ndarray] | None = None
-        self._points = np.zeros((0, 2))
         self._field: LogField | None = None
         self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
@@ -216,8 +215,7 @@ class LocalMap:
         if len(pts) < 20:
             self.reference = None
             return
-        self._points = pts[thin(pts, self._cfg.local_map_cell_m)]
-        index = PointIndex(self._points)
+        index = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)])
         self.reference = (index, index.normals(self._cfg.normal_neighbours))
 
     def field(self) -> LogField:
@@ -334,31 +332,28 @@ class ScanMatcher:
         if len(pts) < 20:
             return guess, "fallback", None
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
-        post = search(self._map.field(), pts, guess, (st, st, sr), cfg.correlative,
-                      cfg.min_inliers)
+        field = self._map.field()
+        post = search(field, pts, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
         source = "matched"
         if post.score < cfg.min_inliers or _outside(post.pose, guess, (st, st, sr),
                                                      cfg.correlative.window_sigmas):
             # stale odometry (still, then a jump): the last motion repeated may explain it
             steady = compose(self._pose, self._last_increment)
-            retry = search(self._map.field(), pts, steady, (st, st, sr), cfg.correlative,
-                           cfg.min_inliers)
+            retry = search(field, pts, steady, (st, st, sr), cfg.correlative, cfg.min_inliers)
             if retry.score > post.score:
                 post, source = retry, "recovered"
         if post.score < cfg.min_inliers:
             return guess, "fallback", None
         ref, normals = reference
-        sigma = np.sqrt(np.diag(post.cov))
-        refined = icp(ref, normals, pts, post.pose, cfg, sigma)
-        d = np.array([refined.pose.x - post.pose.x, refined.pose.y - post.pose.y,
-                      math.remainder(refined.pose.theta - post.pose.theta, math.tau)])
-        if (refined.share >= cfg.min_inliers and refined.rms <= cfg.max_rms_m
-                and d @ np.linalg.solve(post.cov, d) <= REFINE_CHI2):
-            cov = fused_covariance(refined.information, (st, st, sr))
-            if source == "matched" and _agree(refined.pose, refined.information, guess, cov):
-                return fused_pose(refined.pose, refined.information, guess, cov), source, cov
-            return refined.pose, source, cov
-        return post.pose, source, post.cov
+        refined = icp(ref, normals, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
+        d = pose_difference(refined.pose, post.pose)
+        if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
+                or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
+            return post.pose, source, post.cov
+        fused = fused_pose(refined.pose, refined.information, guess, (st, st, sr))
+        if source == "matched" and fused is not None:
+            return fused[0], source, fused[1]
+        return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
               sigma: Sequence[float]) -> bool:
