@@ -3,7 +3,7 @@ processes or a Dask distributed cluster, resumable, one failure never stopping t
 
 Each log gets ``OUTROOT/<stem>`` (``<stem>-<hash>`` when two logs share a stem), written with
 the same atomic contract as ``dynslam process``; a folder that already holds a complete
-output (its ``summary.json``) is skipped unless ``force``. The batch summary goes to
+output (its ``summary.json``) made with the same settings is skipped unless ``force``. The batch summary goes to
 ``OUTROOT/batch.csv`` and ``OUTROOT/batch.json``.
 """
 
@@ -15,10 +15,12 @@ import hashlib
 import io
 import json
 import os
+import signal
 import tempfile
 import time
 import tomllib
-from collections.abc import Callable, Iterable, Iterator
+from collections import Counter
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -49,6 +51,8 @@ class Job:
     read_ahead: bool = True
     """Read and scan-match in a second process (see dynslam_cli.localization.frontend); off when the
     batch already runs one worker per core."""
+    redo: str | None = None
+    """Why a complete earlier output is made again (it was made with other settings)."""
 
 
 def expand_logs(items: Iterable[str]) -> list[str]:
@@ -115,15 +119,61 @@ def read_manifest(path: Path) -> list[dict[str, str | None]]:
     return out
 
 
-def output_names(logs: list[str]) -> list[str]:
-    """Folder names under OUTROOT: the log's stem, made unique by a short path hash."""
-    stems = [default_output(log).name.removesuffix("_dynslam") for log in logs]
-    counts: dict[str, int] = {}
-    for s in stems:
-        counts[s] = counts.get(s, 0) + 1
-    return [s if counts[s] == 1 else
-            f"{s}-{hashlib.sha1(os.path.abspath(log).encode()).hexdigest()[:8]}"
-            for s, log in zip(stems, logs, strict=True)]
+def output_names(runs: list[tuple[str, str | None]]) -> list[str]:
+    """Folder names under OUTROOT for (log, config) pairs: the log's stem, made unique by a
+    short hash of the log's absolute path, and of the configuration's too where one log
+    runs with several (a parameter sweep)."""
+    stems = [default_output(log).name.removesuffix("_dynslam") for log, _ in runs]
+    per_stem, per_log = Counter(stems), Counter(os.path.abspath(log) for log, _ in runs)
+    return [s if per_stem[s] == 1 else
+            f"{s}-{_short_hash(log, config if per_log[os.path.abspath(log)] > 1 else None)}"
+            for s, (log, config) in zip(stems, runs, strict=True)]
+
+
+def _short_hash(log: str, config: str | None) -> str:
+    key = os.path.abspath(log) + ("" if config is None else "\n" + os.path.abspath(config))
+    return hashlib.sha1(key.encode()).hexdigest()[:8]
+
+
+def stale_reason(job: Job) -> str | None:
+    """Why the complete output in ``job.output`` does not answer ``job`` (another input, other
+    reader options, configuration or snapshot period made it), or None when it does. An
+    unreadable configuration is left for the run to report."""
+    from dynslam_cli.config import load_config
+    from dynslam_cli.job import run_settings
+    from dynslam_formats import ReaderOptions
+
+    try:
+        config = load_config(Path(job.config) if job.config else None, job.overrides)
+    except (ConfigError, DynslamError):
+        return None
+    options = ReaderOptions(**job.reader, fov_deg=config.laser.fov_deg)
+    wanted = json.loads(json.dumps(run_settings(job.log, options, config, job.format_name,
+                                                job.snapshots)))
+    try:
+        summary = json.loads((Path(job.output) / "summary.json").read_text(encoding="utf-8"))
+        made = {"input": {k: summary["input"].get(k) for k in wanted["input"]},
+                "options": summary["input"]["options"], "config": summary["config"],
+                "snapshots_s": summary.get("snapshots_s")}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "its summary.json is unreadable"
+    differ = [k for k in sorted(_flat(wanted).keys() | _flat(made).keys())
+              if _flat(wanted).get(k) != _flat(made).get(k)]
+    if not differ:
+        return None
+    more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""
+    return f"made with another {', '.join(differ[:3])}{more}"
+
+
+def _flat(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """{"a.b": value} for a nested dict."""
+    out: dict[str, Any] = {}
+    for k, v in tree.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 def complete(output: Path) -> bool:
@@ -136,7 +186,7 @@ def run_job(job: Job) -> dict[str, Any]:
     from dynslam_formats import ReaderOptions
 
     row: dict[str, Any] = {"log": job.log, "output": job.output, "status": "done",
-                           "error": ""}
+                           "error": "", **({"redone": job.redo} if job.redo else {})}
     start = time.perf_counter()
     try:
         from dynslam_cli.job import process_log
@@ -213,43 +263,78 @@ def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
          overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
          default_config: str | None, format_name: str | None = None,
          snapshots: float | None = None) -> tuple[list[Job], list[dict[str, Any]]]:
-    """Jobs to run, and rows for logs skipped because their output is complete."""
-    names = output_names([str(r["log"]) for r in rows])
+    """Jobs to run, and rows for logs skipped because their output is complete and was
+    made from the same input with the same options and configuration (a job redoing an
+    output made otherwise says why in ``Job.redo``). Every path is absolute: a Dask worker
+    resolves relative ones in its own working folder. A row repeating an earlier row's log
+    and configuration is dropped."""
+    def absolute(path: str | None) -> str | None:
+        return os.path.abspath(path) if path else None
+
+    runs: dict[tuple[str, str | None], dict[str, str | None]] = {}
+    for row in rows:
+        key = (os.path.abspath(str(row["log"])), absolute(row.get("config") or default_config))
+        runs.setdefault(key, row)
+    names = output_names(list(runs))
     jobs, skipped = [], []
-    for row, name in zip(rows, names, strict=True):
-        out = outroot / name
-        job = Job(str(row["log"]), str(out), row.get("config") or default_config,
-                  row.get("truth"), row.get("relations"), overrides, force or out.exists(),
-                  reader, format_name, snapshots)
+    for ((log, config), row), name in zip(runs.items(), names, strict=True):
+        out = (outroot / name).absolute()
+        job = Job(log, str(out), config, absolute(row.get("truth")),
+                  absolute(row.get("relations")), overrides, force or out.exists(), reader,
+                  format_name, snapshots)
         if complete(out) and not force:
-            skipped.append(earlier_row(job))
-        else:
-            jobs.append(job)
+            reason = stale_reason(job)
+            if reason is None:
+                skipped.append(earlier_row(job))
+                continue
+            job = replace(job, redo=reason)
+        jobs.append(job)
     return jobs, skipped
 
 
 def run_local(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
-    """Results as they finish, on ``workers`` local processes (1: in this process)."""
+    """Results as they finish, on ``workers`` local processes (1: in this process). When
+    the caller is interrupted (Ctrl-C, SIGTERM), jobs not started are dropped and running
+    ones are ended: their workers get SIGTERM, remove their temporary folders and exit."""
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
             yield run_job(job)
         return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    import multiprocessing
 
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_job, replace(job, read_ahead=False)) for job in jobs]
-        for f in as_completed(futures):
-            yield f.result()
+    pool = multiprocessing.Pool(min(workers, len(jobs)), _quiet_worker)
+    try:
+        yield from pool.imap_unordered(run_job, [replace(job, read_ahead=False)
+                                                 for job in jobs])
+    finally:
+        pool.terminate()  # after the last result a no-op; on an interruption, the stop
+        pool.join()
+
+
+def _quiet_worker() -> None:
+    """A batch worker leaves stopping to the batch: Ctrl-C at the terminal reaches it too,
+    and is ignored; the SIGTERM the batch sends ends it as ``exit`` would, so the job's
+    temporary output folder is removed on the way out."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _exit_on_term)
+
+
+def _exit_on_term(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
 
 
 def run_dask(jobs: list[Job], client: Any) -> Iterator[dict[str, Any]]:
     """Results as they finish, on a Dask distributed cluster (workers write to OUTROOT,
-    which must be storage they share with this machine)."""
+    which must be storage they share with this machine). Interrupted, the jobs not yet
+    finished are cancelled."""
     from dask.distributed import as_completed
 
     futures = client.map(run_job, jobs, pure=False)
-    for f in as_completed(futures):
-        yield f.result()
+    try:
+        for f in as_completed(futures):
+            yield f.result()
+    finally:
+        client.cancel(futures)
 
 
 def write_summary(outroot: Path, rows: list[dict[str, Any]]) -> None:
@@ -281,7 +366,8 @@ def run_batch(rows: list[dict[str, str | None]], outroot: Path, force: bool,
               on_done: Callable[[dict[str, Any]], None] | None = None,
               format_name: str | None = None, snapshots: float | None = None
               ) -> list[dict[str, Any]]:
-    """Plan, run what is missing through ``execute``, write the summary; returns all rows.
+    """Plan, run what is missing through ``execute``, write the summary (also when
+    interrupted: for the logs finished by then); returns all rows.
     ``reader``: ReaderOptions fields for every log; ``format_name`` and ``snapshots`` as for
     ``dynslam process``."""
     outroot.mkdir(parents=True, exist_ok=True)
@@ -290,10 +376,15 @@ def run_batch(rows: list[dict[str, str | None]], outroot: Path, force: bool,
     for r in results:
         if on_done:
             on_done(r)
-    for r in execute(jobs):
-        results.append(r)
-        if on_done:
-            on_done(r)
-    write_summary(outroot, results)
+    running = iter(execute(jobs))
+    try:
+        for r in running:
+            results.append(r)
+            if on_done:
+                on_done(r)
+    finally:  # interrupted: stop the jobs still running, list what finished
+        if isinstance(running, Generator):
+            running.close()
+        write_summary(outroot, results)
     return results
 

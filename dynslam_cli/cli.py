@@ -341,9 +341,11 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
     """Process many logs: LOGS are files, folders (searched for logs) or globs.
 
     One output folder per log under OUTROOT (the same contract as 'process'; names made
-    unique when two logs share a stem). Resumable: logs whose output is complete are
-    skipped unless --force, so rerunning an interrupted batch does only what is missing. A
-    failing log is recorded and the others go on; the exit code is 1 if any failed.
+    unique when two logs share a stem). Resumable: logs whose output is complete and
+    was made with the same input, options and configuration are skipped unless --force
+    (an output made otherwise is redone), so rerunning an interrupted batch does only what
+    is missing. A failing log is recorded and the others go on; the exit code is 1 if any
+    failed. Ctrl-C or SIGTERM keeps the finished logs and lists them in batch.csv.
     OUTROOT/batch.csv and batch.json list per log: status, scans, data duration, wall time,
     × real time, and scores where the manifest gives truth or relations.
 
@@ -371,12 +373,27 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
         execute = ((lambda js: run_dask(js, client)) if client is not None
                    else (lambda js: run_local(js, jobs)))
         tqdm = _progress_bar()
-        with tqdm(total=len(rows), unit="log", disable=quiet or None, file=sys.stderr) as bar:
-            results = run_batch(rows, outroot, force, overrides, reader,
-                                str(config_file) if config_file else None, execute,
-                                lambda r: bar.update(1), format_name, snapshots)
-        if client is not None:
-            client.close()
+        finished: list[dict[str, Any]] = []
+
+        def on_done(row: dict[str, Any]) -> None:
+            finished.append(row)
+            bar.update(1)
+
+        try:
+            with tqdm(total=len(rows), unit="log", disable=quiet or None,
+                      file=sys.stderr) as bar:
+                results = run_batch(rows, outroot, force, overrides, reader,
+                                    str(config_file) if config_file else None, execute,
+                                    on_done, format_name, snapshots)
+        except (KeyboardInterrupt, Terminated) as e:
+            _batch_report(finished, quiet=True)
+            stopped = "interrupted" if isinstance(e, KeyboardInterrupt) else "terminated"
+            click.echo(f"dynslam: {stopped}: the finished logs' outputs are kept and listed "
+                       f"in {outroot / 'batch.csv'}; the others are not written", err=True)
+            sys.exit(130 if isinstance(e, KeyboardInterrupt) else 143)
+        finally:
+            if client is not None:
+                client.close()
         _batch_report(results, quiet)
         if any(r["status"] == "failed" for r in results):
             sys.exit(1)
@@ -406,6 +423,10 @@ def _batch_report(results: list[dict[str, Any]], quiet: bool) -> None:
     failed = [r for r in results if r["status"] == "failed"]
     for r in failed:
         click.echo(f"dynslam: failed: {r['error']}", err=True)
+    for r in results:
+        if r.get("redone"):
+            click.echo(f"dynslam: redone {r['log']}: its earlier output was {r['redone']}",
+                       err=True)
     if not quiet:
         for r in sorted(results, key=lambda r: r["log"]):
             xrt = r.get("x_real_time")

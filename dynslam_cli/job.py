@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import os
 import statistics
 import sys
 import time
@@ -82,13 +83,12 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             if recording is not None:
                 recording.close()
         stamps = result.trajectory[:, 0]
+        settings = run_settings(log, options, config, format_name, snapshot_every)
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
-            "input": {"path": source.name, "format": entry.name,
-                      "options": {"laser": options.laser, "topic": options.topic,
-                                  "odom_topic": options.odom_topic, "format": format_name,
-                                  "start_s": options.start_s, "end_s": options.end_s,
-                                  "max_scans": options.max_scans}},
+            "input": {"path": source.name, "format": entry.name, **settings["input"],
+                      "options": settings["options"]},
+            "snapshots_s": settings["snapshots_s"],
             "reader": front.stats.to_dict(),
             "scans_processed": len(stamps),
             "first_stamp": float(stamps[0]) if len(stamps) else None,
@@ -100,7 +100,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "localization": result.localization,
             "changes": {"counts": {k: sum(e.kind == k for e in result.changes) for k in KINDS},
                         "events": [dataclasses.asdict(e) for e in result.changes]},
-            "config": config.to_dict(),
+            "config": settings["config"],
             "outputs": list(OUTPUT_FILES) + (["snapshots/"] if snapshots else [])
             + ([recorded["file"]] if recorded else []),
             **({"recording": recorded} if recorded else {}),
@@ -114,6 +114,25 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             on_phase("writing the outputs", 0, 0)
         write_results(tmp, result, config, summary)
     return summary, front.stats
+
+
+def run_settings(log: str, options: Any, config: Config, format_name: str | None,
+                 snapshot_every: float | None) -> dict[str, Any]:
+    """What a run's outputs depend on besides the program: the input (its absolute path and
+    size; None for standard input), the reader options, the effective configuration and the
+    snapshot period. Stored in summary.json; ``dynslam batch`` compares them to tell a
+    finished output from a stale one."""
+    path = None if log == "-" else os.path.abspath(log)
+    try:
+        size = os.path.getsize(path) if path and os.path.isfile(path) else None
+    except OSError:
+        size = None
+    return {"input": {"absolute_path": path, "bytes": size},
+            "options": {"laser": options.laser, "topic": options.topic,
+                        "odom_topic": options.odom_topic, "format": format_name,
+                        "start_s": options.start_s, "end_s": options.end_s,
+                        "max_scans": options.max_scans},
+            "config": config.to_dict(), "snapshots_s": snapshot_every}
 
 
 def _peak_rss_mb(children: bool) -> float | None:

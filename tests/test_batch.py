@@ -7,6 +7,7 @@ import csv
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -151,16 +152,22 @@ def test_dask_scheduler_and_worker_processes(logs, tmp_path):
                 if s.connect_ex(("127.0.0.1", port)) == 0:
                     break
             time.sleep(0.2)
+        # The worker runs in another folder, the batch names relative paths: they must
+        # reach the worker resolved (issue 38, item 3).
+        (tmp_path / "worker").mkdir()
         procs.append(subprocess.Popen([str(bindir / "dask"), "worker", address, "--nworkers",
                                        "1", "--nthreads", "1", "--no-dashboard"],
+                                      cwd=tmp_path / "worker",
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-        out = tmp_path / "out"
-        proc = subprocess.run([str(bindir / "dynslam"), "batch", str(logs / "b"), "-o",
-                               str(out), "--scheduler", address, "-q"],
+        shutil.copytree(logs / "b", tmp_path / "b")
+        proc = subprocess.run([str(bindir / "dynslam"), "batch", "b", "-o", "out",
+                               "--scheduler", address, "-q"], cwd=tmp_path,
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 1, proc.stderr  # broken.log fails, the others finish
-        rows = read_rows(out)
+        rows = read_rows(tmp_path / "out")
         assert [rows[k]["status"] for k in sorted(rows)] == ["failed", "done", "done"]
+        assert (tmp_path / "out/crowd/summary.json").is_file()
+        assert not (tmp_path / "worker" / "out").exists()
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -181,3 +188,79 @@ def test_a_scheduler_address_without_its_port_is_one_line(logs, cli, tmp_path):
     assert r.exit_code == 1
     assert "--scheduler tcp://localhost" in r.stderr and "tcp://HOST:PORT" in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_a_rerun_with_other_options_redoes_the_stale_outputs(logs, cli, tmp_path):
+    """A finished output counts only for the input, options and configuration it was made
+    with; it used to be kept, 'nothing to do', at the old resolution (issue 38, item 1)."""
+    out, log = tmp_path / "out", logs / "a" / "hall.log"
+    assert cli("batch", log, "-o", out, "-q").exit_code == 0
+    r = cli("batch", log, "-o", out, "--resolution", "0.1")
+    assert r.exit_code == 0 and "1 done, 0 skipped" in r.stderr
+    assert "redone" in r.stderr and "map.resolution_m" in r.stderr
+    assert "resolution: 0.100000" in (out / "hall/static.yaml").read_text()
+    assert "nothing to do" in cli("batch", log, "-o", out, "--resolution", "0.1").stderr
+    coarse = tmp_path / "coarse.toml"
+    coarse.write_text("[map]\nresolution_m = 0.2\n")
+    r = cli("batch", log, "-o", out, "--config", coarse)
+    assert "1 done" in r.stderr and "map.resolution_m" in r.stderr
+    r = cli("batch", log, "-o", out, "--config", coarse, "--max-scans", "40")
+    assert "1 done" in r.stderr and "options.max_scans" in r.stderr
+    assert json.loads((out / "hall/summary.json").read_text())["scans_processed"] == 40
+
+
+def test_a_sweep_gets_one_folder_per_manifest_row(logs, cli, tmp_path):
+    """One log twice in a manifest, once with a configuration: two folders (they collided
+    in one, failing with --jobs 2 and with --jobs 1; issue 38, item 2). A row repeating
+    another is run once."""
+    (tmp_path / "r01.toml").write_text("[map]\nresolution_m = 0.1\n")
+    log = logs / "a" / "hall.log"
+    manifest = tmp_path / "sweep.csv"
+    manifest.write_text(f"log,config\n{log},\n{log},r01.toml\n{log},r01.toml\n")
+    for jobs in ("2", "1"):
+        out = tmp_path / f"sweep{jobs}"
+        r = cli("batch", "--manifest", manifest, "-o", out, "--jobs", jobs, "-q")
+        assert r.exit_code == 0, r.stderr
+        folders = sorted(p for p in out.iterdir() if p.is_dir())
+        assert len(folders) == 2
+        resolutions = sorted(json.loads((f / "summary.json").read_text())["map"]
+                             ["resolution_m"] for f in folders)
+        assert resolutions == [0.05, 0.1]
+        assert len(json.loads((out / "batch.json").read_text())) == 2
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_stopped_batch_stops_promptly_and_keeps_what_finished(signum, tmp_path):
+    """SIGTERM or Ctrl-C: the running logs end, the rest are not started, the finished
+    outputs stay and batch.csv lists them; exit 143 or 130. It took 50 s, said 'no output
+    written' and wrote no batch.csv (issue 38, item 4)."""
+    from click.testing import CliRunner
+
+    from dynslam_cli.cli import main
+
+    for seed in range(6):
+        r = CliRunner().invoke(main, ["simulate", "hall", "-o", str(tmp_path / f"s{seed}"),
+                                      "--duration", "60" if seed == 0 else "400",
+                                      "--seed", str(seed)])
+        assert r.exit_code == 0, r.output
+        shutil.copy(tmp_path / f"s{seed}" / "hall.log", tmp_path / f"log{seed}.log")
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "dynslam_cli", "batch",
+                             *sorted(str(p) for p in tmp_path.glob("log*.log")), "-o", str(out),
+                             "--jobs", "2", "-q"], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (out / "log0" / "summary.json").exists():  # the short log is done
+        assert time.time() < deadline and proc.poll() is None
+        time.sleep(0.1)
+    time.sleep(0.5)
+    os.kill(proc.pid, signum)
+    stopped = time.time()
+    _, err = proc.communicate(timeout=60)
+    assert time.time() - stopped < 10
+    assert proc.returncode == (143 if signum == signal.SIGTERM else 130), err
+    assert "outputs are kept" in err and "Traceback" not in err
+    rows = read_rows(out)
+    assert rows[f"{tmp_path.name}/log0.log"]["status"] == "done"
+    assert all(r["status"] == "done" for r in rows.values())
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["batch.csv", "batch.json", *(Path(r["output"]).name for r in rows.values())])
