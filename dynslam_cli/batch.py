@@ -3,8 +3,8 @@ processes or a Dask distributed cluster, resumable, one failure never stopping t
 
 Each log gets ``OUTROOT/<stem>`` (``<stem>-<hash>`` when two logs share a stem), written with
 the same atomic contract as ``dynslam process``; a folder that already holds a complete
-output (its ``summary.json``) made with the same settings is skipped unless ``force``. The batch summary goes to
-``OUTROOT/batch.csv`` and ``OUTROOT/batch.json``.
+output (its ``summary.json``) made with the same settings is skipped unless ``force``. The
+batch summary goes to ``OUTROOT/batch.csv`` and ``OUTROOT/batch.json``.
 """
 
 from __future__ import annotations
@@ -207,10 +207,10 @@ def run_job(job: Job) -> dict[str, Any]:
 
 def _figures(summary: dict[str, Any]) -> dict[str, Any]:
     """A log's row figures from its summary.json."""
-    dur, wall = summary["data_duration_s"], summary["wall_time_s"]
+    dur, wall = summary["data_duration_s"], summary["wall_time_s"]  # dur None: no clock
     return {"format": summary["input"]["format"], "scans": summary["scans_processed"],
-            "data_duration_s": round(dur, 3), "wall_time_s": wall,
-            "x_real_time": round(dur / wall, 1) if wall else None}
+            "data_duration_s": None if dur is None else round(dur, 3), "wall_time_s": wall,
+            "x_real_time": round(dur / wall, 1) if wall and dur is not None else None}
 
 
 def earlier_row(job: Job) -> dict[str, Any]:

@@ -255,8 +255,10 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
                            snapshots, not no_read_ahead)
         if not quiet:
             s = summary
-            click.echo(f"dynslam: {s['scans_processed']} scans, {s['data_duration_s']:.1f} s of "
-                       f"data in {s['wall_time_s']:.2f} s → {target}", err=True)
+            data = (f"{s['data_duration_s']:.1f} s of data" if s["data_duration_s"] is not None
+                    else "data without time")
+            click.echo(f"dynslam: {s['scans_processed']} scans, {data} in "
+                       f"{s['wall_time_s']:.2f} s → {target}", err=True)
         click.echo(str(target))
 
     _guarded(work)

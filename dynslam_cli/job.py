@@ -52,6 +52,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     from dynslam_formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
     from dynslam_formats.picture import SnapshotWriter
     from dynslam_formats.recording import Recording
+    from dynslam_formats.tum import clock_stopped
 
     start = time.perf_counter()
     source, entry, reader = open_log(log, options, format_name)
@@ -83,6 +84,11 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             if recording is not None:
                 recording.close()
         stamps = result.trajectory[:, 0]
+        timeless = clock_stopped(stamps)
+        if timeless:
+            front.stats.warn("time stamps carry no time (most scans repeat one): "
+                             "trajectory.tum numbers the scans 0, 1, 2, … s, and no "
+                             "data duration is given")
         settings = run_settings(log, options, config, format_name, snapshot_every)
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
@@ -92,7 +98,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "reader": front.stats.to_dict(),
             "scans_processed": len(stamps),
             "first_stamp": float(stamps[0]) if len(stamps) else None,
-            "data_duration_s": float(stamps.max() - stamps.min()) if len(stamps) else 0.0,
+            "data_duration_s": (None if timeless else float(stamps.max() - stamps.min())
+                                if len(stamps) else 0.0),
             "map": {"rows": result.static.shape[0], "cols": result.static.shape[1],
                     "resolution_m": result.static.resolution,
                     "origin": [result.static.origin_x, result.static.origin_y],

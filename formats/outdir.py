@@ -26,7 +26,7 @@ from dynslam_formats.changes import write_changes
 from dynslam_formats.landmarks import write_landmarks
 from dynslam_formats.mapfile import write_map
 from dynslam_formats.picture import write_picture
-from dynslam_formats.tum import write_tum
+from dynslam_formats.tum import evo_ready, write_tum
 
 OUTPUT_FILES = ("static.pgm", "static.yaml", "static_prob.png", "static_prob.yaml",
                 "dynamic.pgm", "dynamic.yaml", "map.png", "landmarks.csv", "changes.csv",
@@ -208,6 +208,6 @@ def write_results(folder: Path, result: SlamResult, config: Config,
     with open(folder / "changes.csv", "w", encoding="utf-8", newline="") as f:
         write_changes(f, result.changes)
     with open(folder / "trajectory.tum", "w", encoding="utf-8", newline="\n") as f:
-        write_tum(f, result.trajectory)
+        write_tum(f, evo_ready(result.trajectory))
     (folder / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n",
                                          encoding="utf-8")

@@ -16,6 +16,31 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_formats.base import read_text_lines
 
+STAMP_STEP_S = 1e-6  # the TUM lines' precision: a repeated stamp moves up by this much
+
+
+def clock_stopped(stamps: np.ndarray) -> bool:
+    """Whether a log's scan stamps carry no time: fewer distinct values than half the scans
+    (the corrected Radish logs stamp every scan 0, or one value; infinite-corridor's clock
+    sticks at 2³²)."""
+    return len(stamps) > 1 and 2 * len(np.unique(stamps)) < len(stamps)
+
+
+def evo_ready(trajectory: np.ndarray) -> np.ndarray:
+    """An N×4 trajectory (stamp, x, y, theta) as evo reads it: stamps ascending without
+    repeats. Rows are sorted by stamp (stable: scans a log wrote late go to their time),
+    and a stamp equal to the one before moves up by STAMP_STEP_S. When the clock stopped
+    (:func:`clock_stopped`) the stamps are the scan numbers 0, 1, 2, … (s) in log order."""
+    out = np.array(trajectory, dtype=np.float64)
+    if clock_stopped(out[:, 0]):
+        out[:, 0] = np.arange(len(out), dtype=np.float64)
+        return out
+    out = out[np.argsort(out[:, 0], kind="stable")]
+    repeats = np.flatnonzero(np.diff(out[:, 0]) <= 0)
+    for i in range(repeats[0] + 1 if len(repeats) else len(out), len(out)):
+        out[i, 0] = max(out[i, 0], out[i - 1, 0] + STAMP_STEP_S)
+    return out
+
 
 def write_tum(out: TextIO, trajectory: np.ndarray) -> None:
     """Write an N×4 array (stamp, x, y, theta) as TUM lines."""

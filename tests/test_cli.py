@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import signal
 import subprocess
@@ -317,3 +318,22 @@ def test_an_option_out_of_range_is_a_usage_error_naming_it(cli, tmp_path):
     bad.write_text("[map]\nresolution_m = 0.001\n")
     r = cli("process", SAMPLE, "-o", tmp_path / "f", "--config", bad)
     assert r.exit_code == 1 and "map.resolution_m must be in [0.005, 10] m" in r.stderr
+
+
+def test_a_log_without_time_gets_numbered_stamps_and_no_rate(cli, tmp_path):
+    """Every stamp 0 (freiburg-campus, orebro, zaragoza): trajectory.tum had every stamp
+    0.0, evo refused it, and batch printed absurd rates (issue 38, item 6)."""
+    log = tmp_path / "zero.log"
+    log.write_text("".join(flaser(n=90, r=2.0 + 0.01 * i, t=0.0) for i in range(30)))
+    r = cli("process", log, "-o", tmp_path / "out")
+    assert r.exit_code == 0, r.stderr
+    assert r.stderr.count("time stamps carry no time") == 1 and "data without time" in r.stderr
+    stamps = [float(line.split()[0])
+              for line in (tmp_path / "out/trajectory.tum").read_text().splitlines()]
+    assert stamps == [float(i) for i in range(30)]
+    assert json.loads((tmp_path / "out/summary.json").read_text())["data_duration_s"] is None
+    r = cli("batch", log, "-o", tmp_path / "b", "-q")
+    assert r.exit_code == 0, r.stderr
+    with open(tmp_path / "b/batch.csv") as f:
+        row = next(csv.DictReader(f))
+    assert row["x_real_time"] == "" and row["data_duration_s"] == ""

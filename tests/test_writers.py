@@ -14,7 +14,7 @@ from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import Landmark
 from dynslam_formats.landmarks import HEADER, read_landmarks, write_landmarks
 from dynslam_formats.mapfile import read_map, write_map
-from dynslam_formats.tum import read_tum, write_tum
+from dynslam_formats.tum import evo_ready, read_tum, write_tum
 
 
 def nav2_load(yaml_path):
@@ -175,3 +175,28 @@ def test_a_very_large_map_picture_is_shrunk_keeping_walls():
     grey = np.asarray(image.convert("L"))[10:110, 56:56 + 3000]  # the map inside the frame
     dark_rows = np.flatnonzero((grey == 0).mean(axis=1) > 0.9)
     assert list(dark_rows) == [3, 96]  # both one-cell walls survive the shrinking
+
+
+def _evo_accepts(stamps: np.ndarray) -> bool:
+    """evo's PoseTrajectory3D.check: stamps ascending, none repeated."""
+    return bool(np.all(np.sort(stamps) == stamps) and np.unique(stamps).size == len(stamps))
+
+
+def test_tum_stamps_are_ascending_and_unique_for_evo():
+    """Logs with scans written late, repeated stamps or a stopped clock gave TUM files
+    evo's --full_check refuses (issue 38, item 6)."""
+    poses = np.arange(5.0)[:, None] * np.ones(3)
+    fine = np.column_stack([[10.0, 10.1, 10.2, 10.3, 10.4], poses])
+    assert np.array_equal(evo_ready(fine), fine)  # a good clock: unchanged, to the bit
+    late = np.column_stack([[10.0, 10.2, 10.1, 10.3, 10.3], poses])
+    out = evo_ready(late)
+    assert _evo_accepts(out[:, 0])
+    assert list(out[:, 1]) == [0, 2, 1, 3, 4]  # the late scan at its time
+    assert out[4, 0] == pytest.approx(10.3 + 1e-6, abs=1e-9)  # a repeat moves up 1 µs
+    stopped = np.column_stack([[-0.4, 4.3e9, 4.3e9, 4.3e9, 4.3e9], poses])
+    out = evo_ready(stopped)
+    assert list(out[:, 0]) == [0, 1, 2, 3, 4] and list(out[:, 1]) == [0, 1, 2, 3, 4]
+    buf = io.StringIO()
+    write_tum(buf, evo_ready(np.column_stack([np.zeros(5), poses])))
+    assert [line.split()[0] for line in buf.getvalue().splitlines()] == [
+        "0.000000", "1.000000", "2.000000", "3.000000", "4.000000"]
