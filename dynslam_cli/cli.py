@@ -451,7 +451,8 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
     """Describe what LOG holds before processing it.
 
     Format, record types or topics with message counts, scans, beams, field of view, max
-    range, duration, and whether it carries odometry.
+    range, duration, and whether it carries odometry. A bag with several laser topics is
+    described topic by topic: 'process' needs --topic to choose one.
 
     \b
     Examples:
@@ -465,7 +466,7 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
         from dynslam_formats import ReaderOptions, describe_log
 
         d = describe_log(log, ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
-                                            first_topic=True, fov_deg=flaser_fov), format_name)
+                                            fov_deg=flaser_fov), format_name)
         click.echo(json.dumps(d, indent=2, sort_keys=True) if as_json else _table(d))
 
     _guarded(work)

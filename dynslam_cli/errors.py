@@ -32,6 +32,19 @@ class InputError(DynslamError):
         return InputError, (self.source, self.message, self.line)  # pickles (read-ahead)
 
 
+class SeveralTopicsError(InputError):
+    """A bag holds several topics of the kind needed and no option chose one: ``process``
+    stops with this, ``info`` describes each."""
+
+    def __init__(self, source: str, kind: str, option: str, counts: dict[str, int]) -> None:
+        self.kind, self.option, self.counts = kind, option, counts
+        listing = ", ".join(f"{t} ({n} messages)" for t, n in sorted(counts.items()))
+        super().__init__(source, f"several {kind} topics: {listing}; choose one with {option}")
+
+    def __reduce__(self) -> tuple[type, tuple[str, str, str, dict[str, int]]]:  # type: ignore
+        return SeveralTopicsError, (self.source, self.kind, self.option, self.counts)
+
+
 class ConfigError(DynslamError):
     """A configuration file or option that cannot be used."""
 

@@ -10,11 +10,11 @@ import functools
 import importlib
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from dynslam_cli.errors import InputError
+from dynslam_cli.errors import InputError, SeveralTopicsError
 from dynslam_formats.base import LogReader, ReaderOptions, ReadStats, Source, guarded
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
@@ -137,7 +137,23 @@ def describe_log(path: str, options: ReaderOptions, format_name: str | None = No
                  ) -> dict[str, object]:
     """What a log holds, read through its reader (so it works for every format, plugins
     included): records or topics with counts, scans, beams, field of view, max range,
-    duration, whether it carries odometry."""
+    duration, whether it carries odometry. A bag with several LaserScan (or Odometry)
+    topics and no option choosing one is described topic by topic, under ``topics``, with
+    the option ``process`` needs: the same rule as processing, never a silent pick."""
+    try:
+        return _describe(path, options, format_name)
+    except SeveralTopicsError as e:
+        field = "topic" if e.option == "--topic" else "odom_topic"
+        each = {t: describe_log(path, replace(options, **{field: t}), format_name)
+                for t in sorted(e.counts)}
+        shared = ("path", "format", "records")
+        return {**{k: next(iter(each.values()))[k] for k in shared}, "choose_with": e.option,
+                "topics": {t: {k: v for k, v in d.items() if k not in shared}
+                           for t, d in each.items()}}
+
+
+def _describe(path: str, options: ReaderOptions, format_name: str | None
+              ) -> dict[str, object]:
     import math
 
     source, entry, reader = open_log(path, options, format_name)

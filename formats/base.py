@@ -38,8 +38,6 @@ class ReaderOptions:
     """ROS: the LaserScan topic (needed when a bag has several)."""
     odom_topic: str | None = None
     """ROS: the nav_msgs/Odometry topic (needed when a bag has several)."""
-    first_topic: bool = False
-    """ROS: take the first of several topics instead of asking (for ``dynslam info``)."""
     fov_deg: float | None = None
     """Field of view for records that carry no beam angles (old Carmen FLASER)."""
     start_s: float | None = None

@@ -31,7 +31,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from dynslam_cli.errors import InputError
+from dynslam_cli.errors import InputError, SeveralTopicsError
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.base import (
     OdometryBuffer,
@@ -82,9 +82,9 @@ def frame(name: str) -> str:
 
 
 def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: str | None,
-                 source: str, required: bool, first: bool = False) -> str | None:
+                 source: str, required: bool) -> str | None:
     """The one topic of a kind: the requested one, the only one, or an error listing them
-    (``first``: the first in name order instead of the error)."""
+    (:class:`SeveralTopicsError`)."""
     if requested is not None:
         if requested not in candidates:
             listing = ", ".join(sorted(candidates)) or "none"
@@ -96,21 +96,16 @@ def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: 
         if required:
             raise InputError(source, f"no {kind} messages in this log")
         return None
-    if first:
-        return sorted(candidates)[0]
-    listing = ", ".join(f"{t} ({n} messages)" for t, n in sorted(candidates.items()))
-    raise InputError(source, f"several {kind} topics: {listing}; choose one with {option}")
+    raise SeveralTopicsError(source, kind, option, candidates)
 
 
 def choose_topics(channels: dict[str, tuple[str, int]], options: ReaderOptions, source: str
                   ) -> tuple[str, str | None]:
     """(scan topic, odometry topic or None) from {topic: (message type, message count)}."""
-    first = options.first_topic
     scans = {t: n for t, (m, n) in channels.items() if m == SCAN_TYPE}
     odoms = {t: n for t, (m, n) in channels.items() if m == ODOM_TYPE}
-    scan = choose_topic("LaserScan", "--topic", scans, options.topic, source, True, first)
-    odom = choose_topic("Odometry", "--odom-topic", odoms, options.odom_topic, source, False,
-                        first)
+    scan = choose_topic("LaserScan", "--topic", scans, options.topic, source, True)
+    odom = choose_topic("Odometry", "--odom-topic", odoms, options.odom_topic, source, False)
     return scan or "", odom
 
 

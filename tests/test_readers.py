@@ -91,6 +91,16 @@ def test_several_topics_need_a_choice(datasets, cli, tmp_path):
     r = cli("process", bag, "-o", tmp_path / "o", "-q", "--topic", "/left_scan")
     assert r.exit_code == 0 and len(read_tum(tmp_path / "o/trajectory.tum")) == 435
     assert cli("process", bag, "--topic", "/nope", "-o", tmp_path / "x").exit_code == 1
+    # info follows the same rule: no silent pick (it took /left_scan; issue 38, item 11),
+    # it describes each laser and names the option process needs
+    r = cli("info", bag, "--json")
+    assert r.exit_code == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert "scan_topic" not in d and d["choose_with"] == "--topic"
+    assert {t: v["scans"] for t, v in d["topics"].items()} == {
+        "/left_scan": 435, "/rear_scan": 435, "/right_scan": 434}
+    assert json.loads(cli("info", bag, "--json", "--topic", "/rear_scan").stdout)[
+        "scan_topic"] == "/rear_scan"
 
 
 @pytest.mark.parametrize(("name", "message"), [
