@@ -104,7 +104,8 @@ run_options = _options(  # what to compute and which part of the log: process, b
     click.option("--record", metavar="NAME.mcap",
                  help="Also write a recording of the run for Foxglove and RViz (MCAP, ROS 2 "
                       "messages: /scan, /tf, /map, /dynamic_map, /path, /landmarks ...) as "
-                      "NAME.mcap in the output folder."),
+                      "NAME.mcap in the output folder, or at a path (process: "
+                      "~/runs/today.mcap; --force replaces only a recording of dynslam's)."),
     click.option("--record-period", type=click.FloatRange(min=0, min_open=True),
                  metavar="SECONDS",
                  help="In the recording, send the maps, paths and landmarks at most every "
@@ -359,6 +360,9 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
     """
     if not logs and manifest is None:
         raise click.UsageError("give logs or --manifest")
+    if record is not None and Path(record).name != record:
+        raise click.BadParameter("in batch, a file name: each log's output folder gets its "
+                                 "own recording", param_hint="'--record'")
     overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
                            record_period)
     reader = _reader(laser, topic, odom_topic, start_s, end_s, max_scans)

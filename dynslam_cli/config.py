@@ -107,11 +107,11 @@ class DynamicConfig:
 @dataclass(frozen=True)
 class RecordConfig:
     """A recording of the run for Foxglove and RViz (``--record``; see
-    dynslam_formats.recording): an MCAP file in the output folder."""
+    dynslam_formats.recording): an MCAP file in the output folder or at a path."""
 
     file: str | None = None
-    """File name of the recording in the output folder, ending in .mcap (``--record``);
-    unset: no recording."""
+    """The recording, ending in .mcap (``--record``): a bare file name is written in the
+    output folder, a path (``~/runs/today.mcap``) there, atomically; unset: no recording."""
     period_s: float = 5.0
     """The maps, paths and landmarks are sent at most once every this many seconds of log
     time, when they changed, and once at the end (``--record-period``)."""
@@ -201,10 +201,9 @@ class Config:
         r = self.record
         checks += [
             (r.period_s > 0, "record.period_s must be > 0"),
-            (r.file is None or (r.file.endswith(".mcap") and len(r.file) > len(".mcap")
-                                and Path(r.file).name == r.file),
-             f"record.file must be a file name ending in .mcap (it is written in the output "
-             f"folder), not {r.file!r}"),
+            (r.file is None or (r.file.endswith(".mcap") and len(Path(r.file).name) > 5),
+             f"record.file must be a file name or path ending in .mcap (a bare name is written "
+             f"in the output folder), not {r.file!r}"),
         ]
         checks += [(_storable(values), f"{name}: {_STORABLE}") for name, values in (
             ("map", (m.p_hit, m.p_miss, m.p_clamp_min, m.p_clamp_max)),

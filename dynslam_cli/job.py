@@ -12,6 +12,7 @@ import sys
 import time
 from array import array
 from collections.abc import Callable
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -49,17 +50,27 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     ``on_phase(what, done, total)`` through the final work. ``read_ahead``: read
     and measure the scans in a second process (on Linux; see dynslam_cli.localization.frontend)."""
     from dynslam_formats import open_log
-    from dynslam_formats.outdir import OUTPUT_FILES, atomic_output_dir, write_results
+    from dynslam_formats.outdir import (
+        OUTPUT_FILES,
+        atomic_output_dir,
+        atomic_output_file,
+        recording_destination,
+        write_results,
+    )
     from dynslam_formats.picture import SnapshotWriter
     from dynslam_formats.recording import Recording
     from dynslam_formats.tum import clock_stopped
 
     start = time.perf_counter()
+    elsewhere = (recording_destination(config.record.file, target) if config.record.file
+                 else None)
     source, entry, reader = open_log(log, options, format_name)
-    with atomic_output_dir(target, force, log) as tmp:
+    with (atomic_output_file(elsewhere, force, log) if elsewhere else nullcontext()
+          ) as recording_file, atomic_output_dir(target, force, log) as tmp:
         snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
                      if snapshot_every else None)
-        recording = Recording(tmp / config.record.file, config) if config.record.file else None
+        recording = (Recording(recording_file or tmp / Path(config.record.file).name, config)
+                     if config.record.file else None)
         ticks = array("d")
         front = open_front_end(reader, source, config, read_ahead)
         try:
@@ -78,6 +89,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             if snapshots is not None:
                 snapshots.finish(result)
             recorded = recording.finish(result) if recording is not None else None
+            if recorded and elsewhere:
+                recorded["file"] = str(elsewhere.absolute())
         finally:
             front.close()
             source.close()

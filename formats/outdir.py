@@ -181,6 +181,67 @@ def atomic_output_dir(target: Path, force: bool, log: str | None = None,
         raise
 
 
+def recording_destination(name: str, target: Path) -> Path | None:
+    """Where ``--record NAME`` goes: None for a bare file name (into the output folder
+    ``target``, with the other files), else the path itself, ``~`` expanded (a path into
+    ``target`` is that bare name)."""
+    path = Path(name).expanduser()
+    if path.name == name or path.absolute().parent == target.absolute():
+        return None
+    return path
+
+
+def is_dynslam_recording(path: Path) -> bool:
+    """Whether ``path`` is an MCAP file dynslam wrote (its header names the library)."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            return make_reader(f).get_header().library.startswith("dynslam ")
+    except Exception:  # anything unreadable is not ours
+        return False
+
+
+@contextmanager
+def atomic_output_file(target: Path, force: bool, log: str | None = None) -> Iterator[Path]:
+    """Yield a temporary file beside ``target``; on success it replaces ``target``, on
+    failure it vanishes, with the folders made for it. An existing ``target`` is refused
+    unless ``force``, and even then unless dynslam wrote it (a recording); the input log
+    never."""
+    if log is not None and log != "-" and target.resolve() == Path(log).resolve():
+        raise OutputError(f"{target}: is the input log; name another file")
+    if target.is_dir():
+        raise OutputError(f"{target}: is a folder; name a file")
+    if target.exists() and not force:
+        raise OutputError(f"{target}: exists; use --force to replace it")
+    if target.exists() and not is_dynslam_recording(target):
+        raise OutputError(f"{target}: not a recording dynslam wrote; --force replaces only "
+                          "dynslam's own")
+    parent = target.absolute().parent
+    made = [p for p in (parent, *parent.parents) if not p.exists()]
+    tmp = None
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".partial", dir=parent)
+        os.close(fd)
+        tmp = Path(name)
+        yield tmp
+        tmp.chmod(with_umask(0o666))
+        os.replace(tmp, target)
+    except OSError as e:
+        _undo_file(tmp, made)
+        raise OutputError(f"{target}: cannot write: {e.strerror}") from None
+    except BaseException:
+        _undo_file(tmp, made)
+        raise
+
+
+def _undo_file(tmp: Path | None, made: list[Path]) -> None:
+    if tmp is not None:
+        tmp.unlink(missing_ok=True)
+    _undo(None, made)
+
+
 def _undo(tmp: Path | None, made: list[Path]) -> None:
     """Remove the temporary folder and the parent folders this run created (if empty)."""
     if tmp is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -337,3 +338,42 @@ def test_a_log_without_time_gets_numbered_stamps_and_no_rate(cli, tmp_path):
     with open(tmp_path / "b/batch.csv") as f:
         row = next(csv.DictReader(f))
     assert row["x_real_time"] == "" and row["data_duration_s"] == ""
+
+
+def test_record_takes_a_path_written_atomically(cli, tmp_path, monkeypatch):
+    """--record ~/runs/today.mcap: a recording where the user says, made like the outputs
+    (all or nothing, an existing one replaced only with --force and only if dynslam wrote
+    it); it was refused as 'must be a file name' (issue 38, item 12)."""
+    from mcap.reader import make_reader
+
+    monkeypatch.chdir(tmp_path)
+    log = SAMPLES / "hall" / "hall.log"
+    r = cli("process", log, "-o", "out", "-q", "--record", "runs/today/hall.mcap",
+            "--max-scans", "30")
+    assert r.exit_code == 0, r.stderr
+    rec = tmp_path / "runs/today/hall.mcap"
+    with open(rec, "rb") as f:
+        assert sum(1 for _ in make_reader(f).iter_messages(topics=["/scan"])) == 30
+    assert os.listdir(rec.parent) == ["hall.mcap"]  # no temporary file left
+    summary = json.loads((tmp_path / "out/summary.json").read_text())
+    assert summary["recording"]["file"] == str(rec)
+    assert not any(p.suffix == ".mcap" for p in (tmp_path / "out").iterdir())
+    again = ("process", log, "-o", "out2", "-q", "--record", "runs/today/hall.mcap",
+             "--max-scans", "20")
+    r = cli(*again)
+    assert r.exit_code == 1 and "exists; use --force" in r.stderr
+    assert cli(*again, "--force").exit_code == 0
+    with open(rec, "rb") as f:
+        assert sum(1 for _ in make_reader(f).iter_messages(topics=["/scan"])) == 20
+    (tmp_path / "notes.mcap").write_text("mine")
+    r = cli("process", log, "-o", "out3", "--record", "notes.mcap", "--force")
+    assert r.exit_code == 0  # a bare name: in the output folder, as before
+    r = cli("process", log, "-o", "out4", "--record", "./notes.mcap", "--force")
+    assert r.exit_code == 1 and "not a recording dynslam wrote" in r.stderr
+    assert (tmp_path / "notes.mcap").read_text() == "mine"
+    bad = tmp_path / "bad.log"
+    bad.write_text(flaser() + flaser(t=2) + "FLASER 5 1 2 x\n")
+    r = cli("process", bad, "-o", "out5", "--record", "new/place/run.mcap")
+    assert r.exit_code == 1 and not (tmp_path / "new").exists()  # nothing half-written
+    r = cli("batch", log, "-o", "b", "--record", "runs/x.mcap")
+    assert r.exit_code == 2 and "in batch, a file name" in r.stderr
