@@ -303,6 +303,36 @@ class SinglePrecision:
             odom=_single_heading(scan.odom), laser=_single_heading(scan.laser))
 
 
+# A mount that moves less than this (metres, radians) from the one held has not moved: a
+# Carmen log's mount is the difference of two poses printed to six decimals (fr079: 1.2e-6 m
+# apart from scan to scan; MIT CSAIL 5e-13 m), far below a laser's millimetres.
+MOUNT_TOLERANCE_M, MOUNT_TOLERANCE_RAD = 1e-5, 1e-5
+
+
+def same_mount(a: Pose2D, b: Pose2D) -> bool:
+    """Whether two laser mounts are one within ``MOUNT_TOLERANCE_M`` / ``_RAD``."""
+    return (abs(a.x - b.x) <= MOUNT_TOLERANCE_M and abs(a.y - b.y) <= MOUNT_TOLERANCE_M
+            and abs(math.remainder(a.theta - b.theta, math.tau)) <= MOUNT_TOLERANCE_RAD)
+
+
+class SteadyMount:
+    """Scans with the laser mount held: a mount that is the held one within the tolerance
+    (:func:`same_mount`) becomes it exactly, any other is held from then on. The run then
+    sees one mount where the log has one, and a recording sends it once, on ``/tf_static``
+    (only a mount that really moves goes on ``/tf``), and still plays back into the same
+    run."""
+
+    def __init__(self) -> None:
+        self._mount: Pose2D | None = None
+
+    def __call__(self, scan: Scan) -> Scan:
+        held = self._mount
+        if held is not None and scan.laser != held and same_mount(held, scan.laser):
+            return dataclasses.replace(scan, laser=held)
+        self._mount = scan.laser
+        return scan
+
+
 class ReaderFilter:
     """A reader seen through a filter of its scans: same format name, stats and extras."""
 
@@ -319,10 +349,11 @@ class ScanGuard(ReaderFilter):
     """A reader's scans as the core may use them, whatever the input: finite time stamp,
     finite and bounded poses, finite beam angles making at most one turn, at most
     ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
-    readings marked invalid. Any other scan is a counted, reported skip. A time stamp that
-    does not increase is a counted warning and the scan is kept in file order: real
-    logs have a few (Radish intel and infinite-corridor), and the corrected Radish logs
-    stamp every scan alike."""
+    readings marked invalid, at LaserScan precision (:class:`SinglePrecision`), the laser
+    mount held steady (:class:`SteadyMount`). Any other scan is a counted, reported skip.
+    A time stamp that does not increase is a counted warning and the scan is kept in file
+    order: real logs have a few (Radish intel and infinite-corridor), and the corrected
+    Radish logs stamp every scan alike."""
 
     def __init__(self, reader: LogReader, name: str) -> None:
         super().__init__(reader)
@@ -331,7 +362,7 @@ class ScanGuard(ReaderFilter):
     def scans(self) -> Iterator[Scan]:
         passed = skipped = 0
         last = -math.inf
-        single = SinglePrecision()
+        single, steady = SinglePrecision(), SteadyMount()
         for scan in self.reader.scans():
             problem = scan_problem(scan)
             if problem is not None:
@@ -349,7 +380,7 @@ class ScanGuard(ReaderFilter):
             negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
             if negative.any():
                 scan = dataclasses.replace(scan, ranges=np.where(negative, np.nan, scan.ranges))
-            yield single(scan)
+            yield steady(single(scan))
         if skipped and not passed:
             raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
                              + "; ".join(sorted(self.stats.skipped)) + ")")
