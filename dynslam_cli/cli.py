@@ -179,7 +179,9 @@ def main() -> None:
     """dynslam: 2D laser SLAM in dynamic environments, over recorded robot logs.
 
     Builds a static map S and a dynamic map D (Wolf & Sukhatme 2005), a corner landmark map
-    (EKF-SLAM, Table 3) and the corrected trajectory from Carmen/Radish/Freiburg logs.
+    (EKF-SLAM, Table 3) and the corrected trajectory from a robot's log: Carmen / Radish /
+    Freiburg logs and Player writelogs (text, plain or .gz, .bz2, .xz), ROS 1 bags, ROS 2
+    bags (a folder or .db3) and MCAP files (dynslam info LOG tells what one holds).
 
     \b
     Start with:

@@ -48,8 +48,10 @@ class MapConfig:
     p_miss: float = 0.35
     """Inverse sensor model value for a cell a beam passed through (probability)."""
     p_clamp_min: float = 0.02
-    """Log-odds are clamped to [logit(p_clamp_min), logit(p_clamp_max)] so maps stay revisable."""
+    """The lowest probability a cell can hold: log-odds are clamped to [logit(p_clamp_min),
+    logit(p_clamp_max)] so maps stay revisable."""
     p_clamp_max: float = 0.98
+    """The highest probability a cell can hold."""
     free_threshold: float = 0.1
     """A cell with p below this is Free (paper Sec. 3.1: 0.1)."""
     occupied_threshold: float = 0.9
@@ -98,7 +100,9 @@ class DynamicConfig:
     p_low: float = 0.0001
     """Table 2's *low*. Very low so one free observation clears D: D keeps no history."""
     p_clamp_min: float = 0.05
+    """The lowest probability a cell of D can hold (its log-odds clamped, as S's)."""
     p_clamp_max: float = 0.99
+    """The highest probability a cell of D can hold."""
     neighbourhood_m: float = 0.1
     """An end point is compared with S^{t-1} over a square window of this half-width
     (metres), so small pose or rounding errors do not turn walls dynamic (Sec. 5)."""

@@ -21,8 +21,9 @@ from dynslam_cli.config import Config
 from dynslam_cli.localization.frontend import ForkedFrontEnd, open_front_end
 from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.pipeline import run
+from dynslam_formats.base import COMPRESSED_SUFFIXES
 
-LOG_SUFFIXES = (".gz", ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
+LOG_SUFFIXES = (*COMPRESSED_SUFFIXES, ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
 
 
 def default_output(log: str) -> Path:

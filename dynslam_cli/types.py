@@ -41,3 +41,10 @@ class Scan:
     has_odometry: bool = True
     """False for logs without odometry (laser-only bags): ``odom`` is then the origin and
     the motion prior is "stationary, with wide noise" (see dynslam_cli.localization.scanmatch)."""
+    range_min: float | None = None
+    """The laser's minimum range (metres) where the log says it (a LaserScan's
+    ``range_min``); None where it does not (Carmen, Player)."""
+    time_increment: float | None = None
+    """Time between two beams (seconds) where the log says it (LaserScan); else None."""
+    scan_time: float | None = None
+    """Time between two sweeps (seconds) where the log says it (LaserScan); else None."""

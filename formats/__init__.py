@@ -105,9 +105,8 @@ def detect_format(source: Source) -> ReaderEntry:
     for entry in _in_order():
         if source.head and entry.sniff(source.head):
             return entry
-    stem = source.path[:-3] if source.path.endswith(".gz") else source.path
     for entry in _in_order():
-        if any(stem.endswith(s) for s in entry.suffixes):
+        if source.plain_path.endswith(entry.suffixes):
             return entry
     if not source.head:
         raise InputError(source.name, "empty log: no records at all")

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import bz2
 import dataclasses
 import gzip
 import io
+import lzma
 import math
 import os
 import stat
@@ -12,11 +14,11 @@ import struct
 import sys
 import zlib
 from collections import Counter, deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO, ClassVar, Protocol
+from typing import Any, BinaryIO, ClassVar, Protocol
 
 import numpy as np
 
@@ -24,8 +26,43 @@ from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import interpolate, wrap_angle
 from dynslam_cli.types import Pose2D, Scan
 
-GZIP_MAGIC = b"\x1f\x8b"
 SNIFF_BYTES = 65536
+BINARY_SNIFF_BYTES = 8000  # a NUL byte among the first this many: binary (as git and grep)
+
+
+@dataclass(frozen=True)
+class Compression:
+    """A compression a text log may come in, read by Python's standard library."""
+
+    name: str
+    suffix: str
+    magic: bytes
+    decompressor: Callable[[], Any]
+    """A new incremental decompressor (``decompress(data, max_length)``), for the head."""
+    opener: Callable[[BinaryIO], BinaryIO]
+    """The decompressed stream of a binary file object."""
+    damaged: tuple[type[Exception], ...]
+    """What its reader raises on damaged or truncated data."""
+
+
+COMPRESSIONS = (
+    Compression("gzip", ".gz", b"\x1f\x8b", lambda: zlib.decompressobj(zlib.MAX_WBITS | 16),
+                lambda raw: gzip.GzipFile(fileobj=raw, mode="rb"),  # type: ignore[arg-type,return-value]
+                (EOFError, gzip.BadGzipFile, zlib.error)),
+    Compression("bzip2", ".bz2", b"BZh", bz2.BZ2Decompressor,
+                lambda raw: bz2.BZ2File(raw),  # type: ignore[return-value]
+                (EOFError, OSError)),  # ("Invalid data stream" is an OSError)
+    Compression("xz", ".xz", b"\xfd7zXZ\x00", lzma.LZMADecompressor,
+                lambda raw: lzma.LZMAFile(raw),  # type: ignore[return-value]  # noqa: SIM115
+                (EOFError, lzma.LZMAError)),
+)
+COMPRESSED_SUFFIXES = tuple(c.suffix for c in COMPRESSIONS)
+
+
+def compression_of(head: bytes, path: str) -> Compression | None:
+    """The compression whose magic bytes start ``head``, else whose suffix ends ``path``."""
+    return (next((c for c in COMPRESSIONS if head.startswith(c.magic)), None)
+            or next((c for c in COMPRESSIONS if path.endswith(c.suffix)), None))
 
 
 @dataclass(frozen=True)
@@ -46,6 +83,18 @@ class ReaderOptions:
     """... and stop after this many seconds after the first scan."""
     max_scans: int | None = None
     """... and after this many scans."""
+
+
+ROS_ONLY_OPTIONS = (("topic", "--topic"), ("odom_topic", "--odom-topic"))
+
+
+def warn_ros_only_options(options: ReaderOptions, stats: ReadStats, log_kind: str) -> None:
+    """A counted warning for each ROS-only option given for a log of another kind, which
+    ignores it: as readers count what does not apply to them (record types, interfaces)
+    rather than fail, and as a batch's ``--topic`` may suit its bags but not its text logs."""
+    for name, option in ROS_ONLY_OPTIONS:
+        if getattr(options, name) is not None:
+            stats.warn(f"{option} applies to ROS logs only: ignored for a {log_kind}")
 
 
 @dataclass
@@ -79,7 +128,8 @@ class ReadStats:
 
 
 class Source:
-    """An input: a path (gzip by suffix or magic bytes) or ``-`` for standard input.
+    """An input: a path (gzip, bzip2 or xz by magic bytes or suffix: :data:`COMPRESSIONS`)
+    or ``-`` for standard input.
 
     ``head`` holds the first (decompressed) bytes for format sniffing; :meth:`open` returns a
     binary stream positioned at the start. :meth:`progress` reports compressed bytes consumed.
@@ -98,35 +148,40 @@ class Source:
                 if stat.S_ISDIR(p.stat().st_mode):
                     self._raw = None  # type: ignore[assignment]
                     self.size = 0
-                    self.gzipped = False
+                    self.compression: Compression | None = None
                     self.head = b""
                     return
                 self._raw = open(p, "rb")  # noqa: SIM115 - closed by close()
                 self.size = os.fstat(self._raw.fileno()).st_size
             except OSError as e:
                 raise InputError(self.name, f"cannot open: {e.strerror}") from None
-        magic = self._raw.peek(2)[:2] if hasattr(self._raw, "peek") else b""
-        self.gzipped = magic == GZIP_MAGIC or path.endswith(".gz")
+        self.compression = compression_of(self._raw.peek(SNIFF_BYTES), path)
         self.head = self._peek_head()
 
     @property
     def is_dir(self) -> bool:
         return self._raw is None
 
+    @property
+    def plain_path(self) -> str:
+        """The path without its compression's suffix (``run.log.bz2``: ``run.log``)."""
+        c = self.compression
+        return self.path.removesuffix(c.suffix) if c is not None else self.path
+
     def _peek_head(self) -> bytes:
         data = self._raw.peek(SNIFF_BYTES)
-        if not self.gzipped:
+        c = self.compression
+        if c is None:
             return data[:SNIFF_BYTES]
         try:
-            return zlib.decompressobj(zlib.MAX_WBITS | 16).decompress(data, SNIFF_BYTES)
-        except zlib.error:
-            raise InputError(self.name, "not a valid gzip file") from None
+            return c.decompressor().decompress(data, SNIFF_BYTES)
+        except c.damaged:
+            raise InputError(self.name, f"not a valid {c.name} file") from None
 
     def open(self) -> BinaryIO:
         """The (decompressed) byte stream."""
-        if self.gzipped:
-            return gzip.GzipFile(fileobj=self._raw, mode="rb")  # type: ignore[return-value]
-        return self._raw
+        c = self.compression
+        return c.opener(self._raw) if c is not None else self._raw
 
     def progress(self) -> tuple[int, int]:
         """(bytes consumed, total bytes) of the file on disk; total 0 when unknown."""
@@ -155,9 +210,14 @@ def read_text_lines(path: Path | str) -> list[str]:
 def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
     """(line number, line without its end, whether the line was terminated) for a text log.
 
-    Decoding errors are replaced, never fatal; a damaged gzip stream, and a line longer than
-    ``MAX_LINE_CHARS`` (binary data, ``/dev/zero``), are an :class:`InputError`.
+    Decoding errors are replaced, never fatal; binary data (a NUL byte in the first
+    ``BINARY_SNIFF_BYTES``: an image, a program, a bag read with ``--format carmen``), a
+    damaged compressed stream, and a line longer than ``MAX_LINE_CHARS`` (``/dev/zero``) are
+    an :class:`InputError`.
     """
+    if b"\0" in source.head[:BINARY_SNIFF_BYTES]:
+        raise InputError(source.name, "not a text log: binary data (NUL bytes) near the start")
+    damaged = source.compression.damaged if source.compression is not None else ()
     stream = io.TextIOWrapper(source.open(), encoding="utf-8", errors="replace", newline=None)
     lineno = 0
     try:
@@ -170,7 +230,7 @@ def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
                                  "not a text log?", lineno)
             else:
                 yield lineno, line, False
-    except (EOFError, gzip.BadGzipFile, zlib.error) as e:
+    except damaged as e:
         raise InputError(source.name, f"compressed data is damaged or truncated ({e})",
                          lineno + 1) from None
     finally:  # the source owns the file (and closes it): let go of it, leave it open
@@ -301,6 +361,36 @@ class SinglePrecision:
             odom=_single_heading(scan.odom), laser=_single_heading(scan.laser))
 
 
+# A mount that moves less than this (metres, radians) from the one held has not moved: a
+# Carmen log's mount is the difference of two poses printed to six decimals (fr079: 1.2e-6 m
+# apart from scan to scan; MIT CSAIL 5e-13 m), far below a laser's millimetres.
+MOUNT_TOLERANCE_M, MOUNT_TOLERANCE_RAD = 1e-5, 1e-5
+
+
+def same_mount(a: Pose2D, b: Pose2D) -> bool:
+    """Whether two laser mounts are one within ``MOUNT_TOLERANCE_M`` / ``_RAD``."""
+    return (abs(a.x - b.x) <= MOUNT_TOLERANCE_M and abs(a.y - b.y) <= MOUNT_TOLERANCE_M
+            and abs(math.remainder(a.theta - b.theta, math.tau)) <= MOUNT_TOLERANCE_RAD)
+
+
+class SteadyMount:
+    """Scans with the laser mount held: a mount that is the held one within the tolerance
+    (:func:`same_mount`) becomes it exactly, any other is held from then on. The run then
+    sees one mount where the log has one, and a recording sends it once, on ``/tf_static``
+    (only a mount that really moves goes on ``/tf``), and still plays back into the same
+    run."""
+
+    def __init__(self) -> None:
+        self._mount: Pose2D | None = None
+
+    def __call__(self, scan: Scan) -> Scan:
+        held = self._mount
+        if held is not None and scan.laser != held and same_mount(held, scan.laser):
+            return dataclasses.replace(scan, laser=held)
+        self._mount = scan.laser
+        return scan
+
+
 class ReaderFilter:
     """A reader seen through a filter of its scans: same format name, stats and extras."""
 
@@ -317,10 +407,11 @@ class ScanGuard(ReaderFilter):
     """A reader's scans as the core may use them, whatever the input: finite time stamp,
     finite and bounded poses, finite beam angles making at most one turn, at most
     ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
-    readings marked invalid. Any other scan is a counted, reported skip. A time stamp that
-    does not increase is a counted warning and the scan is kept in file order: real
-    logs have a few (Radish intel and infinite-corridor), and the corrected Radish logs
-    stamp every scan alike."""
+    readings marked invalid, at LaserScan precision (:class:`SinglePrecision`), the laser
+    mount held steady (:class:`SteadyMount`). Any other scan is a counted, reported skip.
+    A time stamp that does not increase is a counted warning and the scan is kept in file
+    order: real logs have a few (Radish intel and infinite-corridor), and the corrected
+    Radish logs stamp every scan alike."""
 
     def __init__(self, reader: LogReader, name: str) -> None:
         super().__init__(reader)
@@ -329,7 +420,7 @@ class ScanGuard(ReaderFilter):
     def scans(self) -> Iterator[Scan]:
         passed = skipped = 0
         last = -math.inf
-        single = SinglePrecision()
+        single, steady = SinglePrecision(), SteadyMount()
         for scan in self.reader.scans():
             problem = scan_problem(scan)
             if problem is not None:
@@ -347,7 +438,7 @@ class ScanGuard(ReaderFilter):
             negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
             if negative.any():
                 scan = dataclasses.replace(scan, ranges=np.where(negative, np.nan, scan.ranges))
-            yield single(scan)
+            yield steady(single(scan))
         if skipped and not passed:
             raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
                              + "; ".join(sorted(self.stats.skipped)) + ")")

@@ -39,7 +39,8 @@ Bad input, decided per case:
 * **counted warning, record kept**: NaN, negative or −inf ranges (the beam is dropped:
   invalid); +inf ranges (no return, REP 117); time stamps that do not increase (Radish logs
   have all-zero, negative and 6-digit stamps: scans stay in file order with the stamps as
-  written); unknown record types and known ones dynslam does not use (counted by type).
+  written); unknown record types and known ones dynslam does not use (counted by type);
+  ``--topic`` / ``--odom-topic``, which apply to ROS logs only (ignored).
 """
 
 from __future__ import annotations
@@ -53,7 +54,14 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, relative
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import OdometryBuffer, ReaderOptions, ReadStats, Source, text_lines
+from dynslam_formats.base import (
+    OdometryBuffer,
+    ReaderOptions,
+    ReadStats,
+    Source,
+    text_lines,
+    warn_ros_only_options,
+)
 
 RECORD_NAMES = ("PARAM", "SYNC", "ODOM", "TRUEPOS", "FLASER", "RLASER", "LASER3", "LASER4",
                 "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4", "ROBOTLASER1",
@@ -123,6 +131,7 @@ class CarmenReader:
         self.source = source
         self.options = options
         self.stats = ReadStats()
+        warn_ros_only_options(options, self.stats, "Carmen log")
         self._kinds = LASERS[options.laser]
         self._kind: str | None = None
         self._params: dict[str, str] = {}

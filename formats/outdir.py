@@ -50,10 +50,10 @@ def check_target(target: Path, force: bool, log: str | None = None,
         raise OutputError(f"{target}: is a symbolic link; name the folder itself with -o")
     if not target.exists():
         return
+    if not target.is_dir():  # (--force would not help: it replaces only folders)
+        raise OutputError(f"{target}: exists and is not a folder; name a folder with -o")
     if not force:
         raise OutputError(f"{target}: output folder exists; use --force to replace it")
-    if not target.is_dir():
-        raise OutputError(f"{target}: exists and is not a folder")
     if not (ours or is_dynslam_output)(target):
         raise OutputError(f"{target}: not a folder dynslam wrote; --force replaces only "
                           "dynslam's own output")

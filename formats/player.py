@@ -19,9 +19,10 @@ Per case: a file version other than 0.0, 0.2 or 0.3 is an error (the layouts dif
 device index, type, subtype or beam count that is not a whole number (or a count beyond
 ``MAX_BEAMS``) is an error; a record with fewer values than its layout needs is an error; a
 time stamp that is not finite is a counted skip; laser records of other types or subtypes
-are counted and ignored. Scans with a non-finite resolution, minimum angle or max range, or
-a zero resolution, are counted skips (the common guard, ``dynslam_formats.base``); a
-negative resolution or min > max is a sweep in the other direction and is kept.
+are counted and ignored, as are ``--topic`` and ``--odom-topic`` (ROS only). Scans with a
+non-finite resolution, minimum angle or max range, or a zero resolution, are counted skips
+(the common guard, ``dynslam_formats.base``); a negative resolution or min > max is a sweep
+in the other direction and is kept.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from dynslam_formats.base import (
     ReadStats,
     Source,
     text_lines,
+    warn_ros_only_options,
 )
 
 VERSIONS = ("0.0", "0.2", "0.3")
@@ -63,6 +65,7 @@ class PlayerReader:
     def __init__(self, source: Source, options: ReaderOptions) -> None:
         self.source = source
         self.stats = ReadStats()
+        warn_ros_only_options(options, self.stats, "Player log")
         self.version = "0.3.0"
         self._device: str | None = None if options.laser in ("front", "") else options.laser
         self._mount = Pose2D()

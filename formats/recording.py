@@ -6,16 +6,19 @@ package's writer; no ROS install). Every stamp is log time.
 topic                 type                                 sent
 ====================  ===================================  =================================
 ``/tf_static``        tf2_msgs/TFMessage                   base_link → laser, at the first
-                                                           scan
+                                                           scan (the readers' guard holds a
+                                                           mount steady within 10 µm, 10 µrad)
 ``/tf``               tf2_msgs/TFMessage                   every scan: map → odom (the
                                                            correction), odom → base_link
                                                            (the log's odometry), REP 105
                                                            (a log without odometry: map →
                                                            base_link);
                                                            base_link → laser too when the
-                                                           mount changed
+                                                           mount really moved
 ``/scan``             sensor_msgs/LaserScan                every scan, as read (+inf: no
-                                                           return, REP 117)
+                                                           return, REP 117); range_min,
+                                                           time_increment and scan_time
+                                                           the log's (see below)
 ``/map``              nav_msgs/OccupancyGrid               S, every ``period_s`` of log time
 ``/dynamic_map``      nav_msgs/OccupancyGrid               D, the same
 ``/path``             nav_msgs/Path                        the estimate so far, the same
@@ -33,6 +36,12 @@ path reaches that, every other pose goes and the steps double (a path of every s
 every period, would grow with the square of the log's length). The map frame is the
 odometry frame of the first scan, so ``/odometry_path`` (frame ``map``) shows the log's
 odometry where it drifts from the estimate.
+
+A ``/scan``'s ``range_min``, ``time_increment`` and ``scan_time`` are the log's where it
+says them (a bag's LaserScan). Carmen and Player logs do not: no record holds a minimum
+range or a sweep's timing (ROBOTLASER's ``accuracy`` is the range resolution; a laser type
+code names no model's timing), so ``range_min`` is then ``laser.min_range_m``, below which
+the run drops readings, and the two times are 0, LaserScan's "not known".
 """
 
 from __future__ import annotations
@@ -125,6 +134,11 @@ def stamps(seconds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     nanosec = np.rint((seconds - sec) * 1e9).astype(np.int64)  # (seconds − sec is exact)
     carry = nanosec == 10**9
     return sec.astype(np.int64) + carry, np.where(carry, 0, nanosec)
+
+
+def _or(known: float | None, otherwise: float) -> float:
+    """A value the log says (not None), else ``otherwise``."""
+    return otherwise if known is None else known
 
 
 def _stamp(stamp: float) -> tuple[int, int]:
@@ -227,7 +241,7 @@ class Recording:
         links = ([(MAP_FRAME, ODOM_FRAME, compose(pose, inverse(odom))),
                   (ODOM_FRAME, BASE_FRAME, odom)] if scan.has_odometry
                  else [(MAP_FRAME, BASE_FRAME, pose)])  # (no odom frame: none in the log)
-        if scan.laser != self._mount:  # (Carmen's, made of two poses, varies in the µm)
+        if scan.laser != self._mount:  # (a mount held steady: see base.SteadyMount)
             self._mount = scan.laser
             links.append((BASE_FRAME, LASER_FRAME, scan.laser))
         self._send("/tf", stamp, self._tf_message(stamp, links))
@@ -344,7 +358,8 @@ class Recording:
         return self.t[SCAN](
             header=self._header(scan.stamp, LASER_FRAME), angle_min=start,
             angle_max=float(scan.angles[-1]), angle_increment=step,
-            time_increment=0.0, scan_time=0.0, range_min=self.config.laser.min_range_m,
+            time_increment=_or(scan.time_increment, 0.0), scan_time=_or(scan.scan_time, 0.0),
+            range_min=_or(scan.range_min, self.config.laser.min_range_m),
             range_max=float(scan.max_range), ranges=ranges.astype(np.float32),
             intensities=np.zeros(0, np.float32))
 

@@ -12,6 +12,9 @@ What is read:
   (``base_link``/``base_footprint``), interpolated at each scan's time. With neither, the
   log is said to have no odometry once and runs with the stationary motion prior.
 * the laser's mounting pose: (static) TF ``base → <scan frame_id>``, else identity.
+* what the scan says of the laser: ``range_min``, ``time_increment`` and ``scan_time``
+  travel with each scan (a recording sends them on; one that is negative or not finite is
+  unknown).
 
 Bad bags (a broken index, a pre-2.0 ``#ROSRECORD`` bag, a truncated file, a damaged message
 definition) give a one-line error naming the file. A LaserScan whose range count contradicts
@@ -79,6 +82,13 @@ def span_agrees(msg: Any) -> bool:
 
 def frame(name: str) -> str:
     return name.lstrip("/")
+
+
+def known(value: float) -> float | None:
+    """A LaserScan's ``range_min``, ``time_increment`` or ``scan_time`` as a :class:`Scan`
+    holds it: None (unknown) when negative or not finite."""
+    value = float(value)
+    return value if math.isfinite(value) and value >= 0 else None
 
 
 def choose_topic(kind: str, option: str, candidates: dict[str, int], requested: str | None,
@@ -160,7 +170,8 @@ class RosMessages:
             if child == self.base:
                 yield from self._ready(self.buffer.add_odometry(stamp_of(tf), pose))
 
-    def _scan(self, msg: Any) -> tuple[float, np.ndarray, np.ndarray, float, str]:
+    def _scan(self, msg: Any) -> tuple[float, np.ndarray, np.ndarray, float, str,
+                                       tuple[float | None, ...]]:
         with np.errstate(invalid="ignore", over="ignore"):  # damaged payloads: counted below
             r = np.asarray(msg.ranges, dtype=np.float64)
         lo, hi = float(msg.range_min), float(msg.range_max)
@@ -172,20 +183,21 @@ class RosMessages:
             r[invalid] = np.nan
         n = len(r)
         angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(n)
-        return stamp_of(msg), r, angles, hi, frame(msg.header.frame_id)
+        sweep = (known(msg.range_min), known(msg.time_increment), known(msg.scan_time))
+        return stamp_of(msg), r, angles, hi, frame(msg.header.frame_id), sweep
 
     def finish(self) -> Iterator[Scan]:
         yield from self._ready(self.buffer.finish())
 
     def _ready(self, ready: Iterable[tuple[object, Pose2D | None, int]]) -> Iterator[Scan]:
         for payload, pose, _ in ready:
-            stamp, ranges, angles, max_range, frame_id = payload  # type: ignore[misc]
+            stamp, ranges, angles, max_range, frame_id, sweep = payload  # type: ignore[misc]
             if pose is None:
                 self.stats.warn("no odometry (nav_msgs/Odometry or TF odom → base) in the "
                                 "log: stationary motion prior")
             self.stats.scans += 1
             yield Scan(stamp, ranges, angles, max_range, pose or Pose2D(),
-                       self.mounts.get(frame_id, Pose2D()), 0, pose is not None)
+                       self.mounts.get(frame_id, Pose2D()), 0, pose is not None, *sweep)
 
 
 class RosbagsReader:

@@ -184,6 +184,90 @@ def test_help_teaches_with_examples(cli):
     assert cli("--version").stdout.startswith("dynslam, version ")
 
 
+@pytest.mark.parametrize("fmt", ["carmen", "player"])
+def test_a_binary_file_read_as_a_text_log_is_one_line_without_its_bytes(cli, tmp_path, fmt):
+    """--format carmen on a program or image echoed its bytes as 'records found: \\x00...'."""
+    blob = tmp_path / "blob.dat"
+    blob.write_bytes(b"\x7fELF\x02\x01\x01\x00" + bytes(range(256)) * 20)
+    r = cli("process", blob, "--format", fmt, "-o", tmp_path / "o")
+    assert r.exit_code == 1
+    assert r.stderr == (f"dynslam: error: {blob}: not a text log: binary data (NUL bytes) "
+                        "near the start\n")
+
+
+def test_bz2_and_xz_logs_are_read_as_gz_logs_are(cli, tmp_path, monkeypatch):
+    """They were 'cannot tell the log format ...; name it with --format'."""
+    import bz2
+    import gzip
+    import lzma
+
+    monkeypatch.chdir(tmp_path)
+    text = SAMPLE.read_bytes()
+    assert cli("process", SAMPLE, "-o", "plain", "-q", "--max-scans", "30").exit_code == 0
+    want = (tmp_path / "plain" / "trajectory.tum").read_bytes()
+    for suffix, compress, name in ((".gz", gzip.compress, "gzip"),
+                                   (".bz2", bz2.compress, "bzip2"), (".xz", lzma.compress, "xz")):
+        log = tmp_path / f"hall.log{suffix}"
+        log.write_bytes(compress(text))
+        r = cli("process", log, "-q", "--max-scans", "30", "--force")
+        assert r.exit_code == 0, (suffix, r.stderr)
+        assert r.stdout.strip() == "hall_dynslam"  # (the compression's suffix goes too)
+        assert (tmp_path / "hall_dynslam" / "trajectory.tum").read_bytes() == want, suffix
+        r = cli("process", "-", "-o", f"stdin{suffix}", "-q", "--max-scans", "30",
+                input=compress(text))  # (known by its magic bytes)
+        assert r.exit_code == 0, (suffix, r.stderr)
+        assert (tmp_path / f"stdin{suffix}" / "trajectory.tum").read_bytes() == want, suffix
+        cut = tmp_path / f"cut.log{suffix}"
+        cut.write_bytes(compress(text)[:30000])
+        r = cli("info", cut)
+        assert r.exit_code == 1 and len(r.stderr.splitlines()) == 1, (suffix, r.stderr)
+        assert "compressed data is damaged or truncated" in r.stderr, suffix
+        fake = tmp_path / f"fake.log{suffix}"
+        fake.write_text("FLASER 1 2\n")
+        assert f"not a valid {name} file" in cli("info", fake).stderr
+
+
+def test_topic_options_on_a_text_log_are_a_counted_warning(cli, tmp_path):
+    """--topic on a Carmen or Player log was silently ignored. Readers count what does not
+    apply to them (record types, interfaces) and go on; so does a batch whose --topic suits
+    its bags but not its text logs."""
+    sim = tmp_path / "sim"
+    assert cli("simulate", "corridors", "-o", sim, "--duration", "3", "--format",
+               "player").exit_code == 0
+    for log, kind in ((SAMPLE, "Carmen"), (sim / "corridors.player.log", "Player")):
+        out = tmp_path / kind
+        r = cli("process", log, "-o", out, "-q", "--max-scans", "10", "--topic", "/scan")
+        assert r.exit_code == 0, r.stderr
+        reason = f"--topic applies to ROS logs only: ignored for a {kind} log"
+        assert f"dynslam: warning: {log}: {reason} (×1)" in r.stderr.splitlines()
+        assert json.loads((out / "summary.json").read_text())["reader"]["warnings"] == {
+            reason: 1}
+    r = cli("info", SAMPLE, "--odom-topic", "/odom", "--json")
+    assert json.loads(r.stdout)["warnings"] == {
+        "--odom-topic applies to ROS logs only: ignored for a Carmen log": 1}
+
+
+def test_an_output_that_is_a_file_is_refused_as_such(cli, tmp_path):
+    """simulate -o FILE said 'output folder exists; use --force', and --force then said
+    it is not a folder."""
+    taken = tmp_path / "taken"
+    taken.write_text("mine")
+    for args in (["simulate", "corridors", "--duration", "2"], ["process", SAMPLE]):
+        for force in ([], ["--force"]):
+            r = cli(*args, "-o", taken, *force)
+            assert r.exit_code == 1
+            assert r.stderr == (f"dynslam: error: {taken}: exists and is not a folder; name a "
+                                "folder with -o\n")
+    assert taken.read_text() == "mine"
+
+
+def test_top_level_help_names_every_format(cli):
+    """It named Carmen/Radish/Freiburg logs only."""
+    text = " ".join(cli("--help").stdout.split())
+    for name in ("Carmen", "Player", "ROS 1 bags", "ROS 2 bags", "MCAP", ".gz, .bz2, .xz"):
+        assert name in text, name
+
+
 def test_resolution_option_changes_map(cli, tmp_path):
     assert cli("process", SAMPLE, "-o", tmp_path / "o", "--resolution", "0.2", "-q").exit_code == 0
     assert "resolution: 0.200000" in (tmp_path / "o" / "static.yaml").read_text()

@@ -49,3 +49,18 @@ def test_dynslam_config_prints_a_config_file_that_loads_back(cli, tmp_path):
     r = cli("config", "--config", tuned)
     path.write_text(r.stdout)
     assert load_config(path) == load_config(tuned)
+
+
+def test_every_key_dynslam_config_prints_has_its_own_meaning(cli):
+    """Each key (and table) comes under a comment of its own: about 20 keys came bare
+    (max_landmarks, [ekf.noise] range_m, [loop] pending_closures, ...), or under their
+    neighbour's comment (min_window_m under nothing, max_window_deg's '... at most this')."""
+    import itertools
+    import re
+
+    key = re.compile(r"^(# )?(\w+) = ")
+    lines = cli("config").stdout.splitlines()
+    bare = [line for above, line in itertools.pairwise(lines)
+            if (key.match(line) or line.startswith("[")) and
+            (not above.startswith("#") or key.match(above))]
+    assert bare == []

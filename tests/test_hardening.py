@@ -161,12 +161,14 @@ def test_ctrl_c_while_starting_exits_130_without_traceback(tmp_path, delay):
 
 
 def test_endless_line_is_an_error_not_a_memory_error(cli, tmp_path):
-    log = tmp_path / "zeros.log"
-    with open(log, "wb") as f:  # what `dynslam process /dev/zero --format carmen` reads
-        f.write(b"\0" * 5_000_000)
+    log = tmp_path / "digits.log"
+    log.write_bytes(b"7" * 5_000_000)
     r = cli("process", log, "--format", "carmen", "-o", tmp_path / "out", "-q")
     assert r.exit_code == 1 and r.stderr.count("\n") == 1
     assert "a line longer than 4000000 characters" in r.stderr
+    r = cli("process", "/dev/zero", "--format", "carmen", "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1  # (binary: said at once)
+    assert "not a text log: binary data (NUL bytes) near the start" in r.stderr
 
 
 def test_garbage_is_not_echoed_raw():

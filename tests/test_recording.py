@@ -311,3 +311,89 @@ def test_a_log_without_odometry_plays_back_without_it(cli, datasets, tmp_path):
         assert (first / name).read_bytes() == (again / name).read_bytes(), name
     summary = json.loads((first / "summary.json").read_text())
     assert summary["recording"]["messages"]["/odometry_path"] == 0
+
+
+def mount_links(path) -> dict[str, list]:
+    """The base_link → laser transforms of a recording, by topic."""
+    links: dict[str, list] = {"/tf_static": [], "/tf": []}
+    for topic, _, _, msg in read_all(path):
+        if topic in links:
+            links[topic] += [(tf.transform.translation.x, tf.transform.translation.y)
+                             for tf in msg.transforms if tf.child_frame_id == "laser"]
+    return links
+
+
+def test_a_mount_that_jitters_in_the_log_s_last_digits_goes_on_tf_static_only(cli, tmp_path):
+    """Carmen's mount is the laser pose minus the robot pose, each printed to six decimals:
+    it varies from scan to scan in the µm (fr079) or 1e-13 m (MIT). Such a mount is static;
+    one that really moves (here by 0.1 m at the 30th scan) goes on /tf, once."""
+    log = tmp_path / "mount.log"
+    lines = []
+    for i in range(1, 60):
+        robot = (0.01 * i, 0.002 * i, 0.001 * i)
+        forward = (0.1 if i < 30 else 0.2) + (1e-6 if i % 3 else 0.0)
+        laser = (robot[0] + forward * math.cos(robot[2]),
+                 robot[1] + forward * math.sin(robot[2]) - (1e-6 if i % 2 else 0.0), robot[2])
+        ranges = " ".join(f"{2.0 + 0.01 * (i % 7):.3f}" for _ in range(90))
+        poses = " ".join(f"{v:.6f}" for v in (*laser, *robot))
+        lines.append(f"FLASER 90 {ranges} {poses} {i}.0 host {i}.0\n")
+    log.write_text("".join(lines))
+    mounts = {(round(s.laser.x, 9), round(s.laser.y, 9)) for s in read_scans(log)}
+    assert len(mounts) == 2  # the run sees the two mounts the log means
+    out, again = tmp_path / "out", tmp_path / "again"
+    assert cli("process", log, "-o", out, "-q", "--record", "run.mcap").exit_code == 0
+    links = mount_links(out / "run.mcap")
+    assert [x for x, _ in links["/tf_static"]] == [pytest.approx(0.1, abs=1e-5)]
+    assert [x for x, _ in links["/tf"]] == [pytest.approx(0.2, abs=1e-5)]
+    assert cli("process", out / "run.mcap", "-o", again, "-q").exit_code == 0
+    assert (again / "trajectory.tum").read_bytes() == (out / "trajectory.tum").read_bytes()
+
+
+def test_mit_csail_s_mount_is_sent_once(cli, datasets, tmp_path):
+    """MIT's mount varies by 5e-13 m: it was sent on /tf for 1 900 of 1 988 scans."""
+    out = tmp_path / "out"
+    assert cli("process", datasets / "carmen" / "mit-csail.clf", "-o", out, "-q",
+               "--max-scans", "150", "--record", "run.mcap").exit_code == 0
+    links = mount_links(out / "run.mcap")
+    assert (len(links["/tf_static"]), len(links["/tf"])) == (1, 0)
+
+
+def laser_scans(path) -> list:
+    return [msg for topic, _, _, msg in read_all(path) if topic == "/scan"]
+
+
+def test_scan_fields_are_the_log_s_where_it_says_them(cli, tmp_path):
+    """A bag's LaserScan says its range_min, time_increment and scan_time: the recording
+    sends them on (they were laser.min_range_m, 0 and 0), and its own playback keeps them.
+    A Carmen log says none: range_min is laser.min_range_m, below which the run drops
+    readings, and the times 0 (not known)."""
+    sim = tmp_path / "sim"
+    r = cli("simulate", "corridors", "-o", sim, "--duration", "4", "--format", "rosbag1")
+    assert r.exit_code == 0, r.stderr
+    cfg = tmp_path / "min.toml"
+    cfg.write_text("[laser]\nmin_range_m = 0.05\n")
+    out, again = tmp_path / "out", tmp_path / "again"
+    assert cli("process", sim / "corridors.bag", "-o", out, "-q", "--config", cfg,
+               "--record", "run.mcap").exit_code == 0
+    assert cli("process", out / "run.mcap", "-o", again, "-q", "--config", cfg,
+               "--record", "run.mcap").exit_code == 0
+    for path in (out / "run.mcap", again / "run.mcap"):
+        fields = {(m.range_min, m.time_increment, m.scan_time) for m in laser_scans(path)}
+        assert fields == {(np.float32(0.02), 0.0, np.float32(0.1))}, path  # simlogs' values
+    log = tmp_path / "a.log"
+    log.write_text("".join(flaser(n=90, t=i) for i in range(1, 20)))
+    assert cli("process", log, "-o", tmp_path / "c", "-q", "--config", cfg,
+               "--record", "run.mcap").exit_code == 0
+    fields = {(m.range_min, m.time_increment, m.scan_time)
+              for m in laser_scans(tmp_path / "c" / "run.mcap")}
+    assert fields == {(np.float32(0.05), 0.0, 0.0)}
+
+
+def test_people_bag_s_range_min_and_timing_are_recorded(cli, datasets, tmp_path):
+    out = tmp_path / "out"
+    assert cli("process", datasets / "rosbag1" / "people-walking-rear.bag", "-o", out, "-q",
+               "--max-scans", "20", "--record", "run.mcap").exit_code == 0
+    scan = laser_scans(out / "run.mcap")[0]
+    assert scan.range_min == np.float32(0.03)
+    assert scan.time_increment == np.float32(6.510417e-05)
+    assert scan.scan_time == np.float32(0.13333334)

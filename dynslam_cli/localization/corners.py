@@ -31,6 +31,7 @@ class CornerConfig:
     jump_m: float = 0.25
     """Range jump between neighbouring beams that splits a cluster (plus jump_ratio · r)."""
     jump_ratio: float = 0.05
+    """Share of the range r added to ``jump_m`` (a fraction): far beams lie farther apart."""
     split_tolerance_m: float = 0.04
     """A run is straight while no point is farther than this from its chord."""
     min_points: int = 7

@@ -43,6 +43,8 @@ class EkfConfig:
     candidate_expiry_scans: int = 15
     """... each within this many scans of the previous one."""
     max_landmarks: int = 300
+    """At most this many landmarks in the filter (its cost grows with their square): beyond,
+    the least recently seen leave it first."""
     active_window_scans: int = 150
     """A landmark not seen for this many scans leaves the filter ..."""
     keep_observations: int = 5

@@ -68,11 +68,13 @@ class CorrelativeConfig:
     window_sigmas: float = 3.0
     """The window spans this many of the odometry prior's standard deviations ..."""
     min_window_m: float = 0.1
+    """... but at least this far either way in translation (metres) ..."""
     min_window_deg: float = 3.0
-    """... and at least this much either way ..."""
+    """... and in rotation (degrees) ..."""
     max_window_m: float = 1.0
+    """... and at most this far in translation (metres) ..."""
     max_window_deg: float = 60.0
-    """... and at most this."""
+    """... and in rotation (degrees)."""
 
 
 class OdometryScale:

@@ -32,10 +32,15 @@ class NoiseModel:
     rot_per_m_deg: float = 1.0
     """Std of rotation error per metre driven (degrees)."""
     trans_floor_m: float = 0.002
+    """Added to every motion's std of translation error, however small the motion (metres) ..."""
     rot_floor_deg: float = 0.1
+    """... and to its std of rotation error (degrees)."""
     range_m: float = 0.03
+    """Std of a corner's measured range (metres) ..."""
     range_per_m: float = 0.01
+    """... plus this much per metre of that range (fraction)."""
     bearing_deg: float = 1.0
+    """Std of a corner's measured bearing (degrees)."""
 
 
 # -- motion model ---------------------------------------------------------------------------

@@ -64,6 +64,7 @@ class LoopConfig:
     search_angle_deg: float = 10.0
     """Rotation window of the search (plus 1° per 10 m of graph distance)."""
     max_search_angle_deg: float = 30.0
+    """... up to this (degrees)."""
     submap_nodes: int = 4
     """Scans of this many nodes on each side of the old node make the matched submap."""
     query_nodes: int = 0
@@ -77,7 +78,9 @@ class LoopConfig:
     """A match that could slide farther than this (standard deviation of the equally good
     offsets, e.g. along a featureless corridor) is not used."""
     min_inliers: float = 0.65
+    """The match refined by ICP must pair up this share of the points ..."""
     max_rms_m: float = 0.05
+    """... at most this far from their lines, RMS (metres)."""
     attempt_every_m: float = 1.0
     """Try at most once per this much driven (a closure just made needs no repeat)."""
     chain_noise_scale: float = 1.5
@@ -97,11 +100,14 @@ class LoopConfig:
     """... but at least this far along (two matches from nearly the same place see the same
     view, so they share its aliasing: a corridor's doors matched one door off) ..."""
     pair_tolerance_m: float = 0.15
+    """... closing the loop of the two closures to this distance (metres, plus
+    ``drift_per_m`` times the path between their ends) ..."""
     pair_tolerance_deg: float = 2.0
-    """... closing the loop of the two closures to this (plus ``drift_per_m`` and
-    ``pair_drift_deg_per_m`` times the path between their ends)."""
+    """... and this angle (degrees) ..."""
     pair_drift_deg_per_m: float = 0.2
+    """... plus this much per metre of that path (degrees per metre)."""
     pending_closures: int = 8
+    """Closures waiting for a partner: at most this many, the oldest dropped first."""
     online_nodes: int = 2000
     """While the log runs, an optimization moves at most this many nodes: those nearest,
     through the graph, to the closure just made (the rest hold until the whole graph is

@@ -57,6 +57,9 @@ REBUILD_KEYS = 16
 
 @dataclass(frozen=True)
 class MatchConfig:
+    """Scan matching: each scan's motion, measured against a local map of key scans, is the
+    EKF's control input."""
+
     enabled: bool = True
     """False: the EKF predicts from wheel odometry alone."""
     method: str = "icp"
@@ -80,6 +83,7 @@ class MatchConfig:
     min_inliers: float = 0.5
     """Share of points that must pair up for the match to count."""
     max_rms_m: float = 0.08
+    """... and whose pairs lie at most this far from their lines, RMS (metres)."""
     prior_scale: float = 1.0
     """The odometry prior's standard deviations are the motion noise's times this ..."""
     prior_floor_m: float = 0.0
@@ -87,7 +91,9 @@ class MatchConfig:
     prior_floor_deg: float = 5.0
     """... and this (rotation): wheel odometry of real robots slips in fast turns."""
     key_distance_m: float = 0.5
+    """A scan becomes a key scan of the local map after this much motion (metres) ..."""
     key_angle_deg: float = 15.0
+    """... or this much turning (degrees) since the last key scan."""
     local_map_scans: int = 8
     """Key scans in the local map each scan is matched against (1: the last key scan)."""
     local_map_cell_m: float = 0.05
