@@ -212,8 +212,9 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
             quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
-    LOG is a Carmen log (.log, .clf, .gfs.log, optionally gzipped), a Player writelog, a
-    ROS1 .bag, a ROS2 bag folder, .db3 or .mcap, or - for standard input (text logs).
+    LOG is a Carmen log (.log, .clf, .gfs.log; plain, .gz, .bz2 or .xz), a Player
+    writelog, a ROS1 .bag, a ROS2 bag folder, .db3 or .mcap, or - for standard input (text
+    logs).
 
     \b
     Writes into the output folder (atomically: all or nothing):
