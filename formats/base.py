@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import gzip
 import io
 import math
 import os
@@ -20,7 +19,7 @@ from typing import BinaryIO, ClassVar, Protocol
 
 import numpy as np
 
-from dynslam_cli.errors import InputError
+from dynslam_cli.errors import InputError, printable
 from dynslam_cli.geometry import interpolate, wrap_angle
 from dynslam_cli.types import Pose2D, Scan
 
@@ -80,6 +79,70 @@ class ReadStats:
         }
 
 
+GZIP_WBITS = zlib.MAX_WBITS | 16  # a gzip header and trailer around the deflate stream
+GZIP_PIECE = 16384  # compressed bytes fed at a time: the damage is found within this many
+
+
+class GzipUntilDamaged(io.RawIOBase):
+    """A gzip file's decompressed bytes up to where its compressed data ends early (a log cut
+    off while written: a robot that crashed) or stops being readable (a bad copy). There the
+    stream ends as if the file did, and :attr:`damage` says where and why. Members written
+    one after another read as one stream, and zero bytes after a member are padding, as
+    ``gzip.GzipFile`` reads them; anything else after a member is damage."""
+
+    def __init__(self, raw: BinaryIO) -> None:
+        super().__init__()
+        self._raw = raw
+        self._member = zlib.decompressobj(GZIP_WBITS)
+        self._pending = b""
+        self._offset = 0  # compressed bytes read so far
+        self._ended = False
+        self.damage: str | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: bytearray | memoryview) -> int:  # type: ignore[override]
+        while not self._pending and not self._ended:
+            self._pending = self._inflate_more()
+        n = min(len(buffer), len(self._pending))
+        buffer[:n] = self._pending[:n]
+        self._pending = self._pending[n:]
+        return n
+
+    def _inflate_more(self) -> bytes:
+        """The next decompressed bytes (maybe none yet); at the end, or at damage, none and
+        ``_ended`` set."""
+        member = self._member
+        if member.eof:  # a member ended: zero padding, then maybe a next member
+            data = member.unused_data.lstrip(b"\0")
+            while not data and (piece := self._read()):
+                data = piece.lstrip(b"\0")
+            if not data:
+                self._ended = True
+                return b""
+            member = self._member = zlib.decompressobj(GZIP_WBITS)
+        else:
+            data = member.unconsumed_tail or self._read()
+            if not data:
+                self._ended = True
+                self.damage = (f"compressed data ends at byte {self._offset} before its "
+                               "end-of-stream marker (cut off while written?): read up to there")
+                return b""
+        try:
+            return member.decompress(data, GZIP_PIECE * 4)
+        except zlib.error as e:
+            self._ended = True  # (data is a tail of what was read: it starts here)
+            self.damage = (f"compressed data damaged between bytes {self._offset - len(data)} "
+                           f"and {self._offset} ({e}): read up to there")
+            return b""
+
+    def _read(self) -> bytes:
+        piece = self._raw.read(GZIP_PIECE)
+        self._offset += len(piece)
+        return piece
+
+
 class Source:
     """An input: a path (gzip by suffix or magic bytes) or ``-`` for standard input.
 
@@ -119,16 +182,25 @@ class Source:
         data = self._raw.peek(SNIFF_BYTES)
         if not self.gzipped:
             return data[:SNIFF_BYTES]
-        try:
-            return zlib.decompressobj(zlib.MAX_WBITS | 16).decompress(data, SNIFF_BYTES)
-        except zlib.error:
-            raise InputError(self.name, "not a valid gzip file") from None
+        head = GzipUntilDamaged(io.BytesIO(data)).read(SNIFF_BYTES)
+        if not head and not data.startswith(GZIP_MAGIC):
+            raise InputError(self.name, "not a valid gzip file")
+        return head
 
     def open(self) -> BinaryIO:
-        """The (decompressed) byte stream."""
+        """The (decompressed) byte stream. A gzip stream ends where its compressed data
+        stops being readable; :attr:`damage` then says where and why."""
         if self.gzipped:
-            return gzip.GzipFile(fileobj=self._raw, mode="rb")  # type: ignore[return-value]
+            self._inflated = GzipUntilDamaged(self._raw)
+            return io.BufferedReader(self._inflated, GZIP_PIECE)  # type: ignore[return-value]
         return self._raw
+
+    @property
+    def damage(self) -> str | None:
+        """Where and why a gzip source's compressed data stopped being readable (None: it
+        did not, or the source is not gzip)."""
+        inflated = getattr(self, "_inflated", None)
+        return inflated.damage if inflated is not None else None
 
     def progress(self) -> tuple[int, int]:
         """(bytes consumed, total bytes) of the file on disk; total 0 when unknown."""
@@ -154,27 +226,33 @@ def read_text_lines(path: Path | str) -> list[str]:
         raise InputError(str(path), "not a text file") from None
 
 
-def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
+def text_lines(source: Source, stats: ReadStats | None = None
+               ) -> Iterator[tuple[int, str, bool]]:
     """(line number, line without its end, whether the line was terminated) for a text log.
 
-    Decoding errors are replaced, never fatal; a damaged gzip stream, and a line longer than
-    ``MAX_LINE_CHARS`` (binary data, ``/dev/zero``), are an :class:`InputError`.
+    Decoding errors are replaced, never fatal. A gzip stream cut short or damaged ends the
+    lines where it stops being readable (the line it stops in comes unterminated): a counted
+    warning in ``stats`` saying where, or an :class:`InputError` without ``stats``. A line
+    longer than ``MAX_LINE_CHARS`` (binary data, ``/dev/zero``) is an :class:`InputError`.
     """
     stream = io.TextIOWrapper(source.open(), encoding="utf-8", errors="replace", newline=None)
-    lineno = 0
+    lineno, terminated = 0, True
     try:
         while line := stream.readline(MAX_LINE_CHARS + 1):
             lineno += 1
-            if line.endswith("\n"):
+            terminated = line.endswith("\n")
+            if terminated:
                 yield lineno, line[:-1], True
             elif len(line) > MAX_LINE_CHARS:
                 raise InputError(source.name, f"a line longer than {MAX_LINE_CHARS} characters: "
                                  "not a text log?", lineno)
             else:
                 yield lineno, line, False
-    except (EOFError, gzip.BadGzipFile, zlib.error) as e:
-        raise InputError(source.name, f"compressed data is damaged or truncated ({e})",
-                         lineno + 1) from None
+        if source.damage is not None:
+            where = lineno + terminated  # the line the damage cuts short, or the next
+            if stats is None:
+                raise InputError(source.name, source.damage, where)
+            stats.warn(source.damage, where)
     finally:  # the source owns the file (and closes it): let go of it, leave it open
         with suppress(ValueError):  # (already closed by the source)
             stream.detach()
@@ -208,9 +286,31 @@ def container_errors(name: str, what: str) -> Iterator[None]:
         if not (isinstance(e, UnicodeDecodeError | struct.error | EOFError)
                 or _raised_by_library(e)):
             raise
-        lines = str(e).strip().splitlines()
-        first = lines[0] if lines else type(e).__name__
-        raise InputError(name, f"cannot read this {what}: {first}") from None
+        raise InputError(name, f"cannot read this {what}: {first_line(e)}") from None
+
+
+def first_line(e: BaseException) -> str:
+    """An exception's message cut to its first line (some quote a whole message definition),
+    or its type's name when it has none (an ``AssertionError``)."""
+    lines = str(e).strip().splitlines()
+    return lines[0] if lines else type(e).__name__
+
+
+@dataclass
+class RecordWalk:
+    """How far reading a container's records one after another got (a bag whose index, an
+    MCAP file whose summary, cannot be used): messages read, the byte where reading stopped,
+    and why when that was before the end of its data (None: it read to the end)."""
+
+    messages: int = 0
+    stop: int = 0
+    damage: str | None = None
+
+    def report(self, stats: ReadStats, size: int) -> None:
+        """The damage, if any, as a counted warning saying where it starts."""
+        if self.damage is not None:
+            stats.warn(f"unreadable from byte {self.stop} of {size} ({printable(self.damage)})"
+                       f": the {self.messages} messages before it were read")
 
 
 class LogReader(Protocol):
