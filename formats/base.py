@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import bz2
 import dataclasses
-import gzip
 import io
 import lzma
 import math
@@ -22,7 +21,7 @@ from typing import Any, BinaryIO, ClassVar, Protocol
 
 import numpy as np
 
-from dynslam_cli.errors import InputError
+from dynslam_cli.errors import InputError, printable
 from dynslam_cli.geometry import interpolate, wrap_angle
 from dynslam_cli.types import Pose2D, Scan
 
@@ -42,13 +41,15 @@ class Compression:
     opener: Callable[[BinaryIO], BinaryIO]
     """The decompressed stream of a binary file object."""
     damaged: tuple[type[Exception], ...]
-    """What its reader raises on damaged or truncated data."""
+    """What its decompressor or stream raises on damaged or truncated data (gzip's stream
+    raises nothing: it ends where the damage starts and says where,
+    :class:`GzipUntilDamaged`)."""
 
 
 COMPRESSIONS = (
-    Compression("gzip", ".gz", b"\x1f\x8b", lambda: zlib.decompressobj(zlib.MAX_WBITS | 16),
-                lambda raw: gzip.GzipFile(fileobj=raw, mode="rb"),  # type: ignore[arg-type,return-value]
-                (EOFError, gzip.BadGzipFile, zlib.error)),
+    Compression("gzip", ".gz", b"\x1f\x8b", lambda: zlib.decompressobj(GZIP_WBITS),
+                lambda raw: io.BufferedReader(GzipUntilDamaged(raw), GZIP_PIECE),  # type: ignore[return-value]
+                (zlib.error,)),
     Compression("bzip2", ".bz2", b"BZh", bz2.BZ2Decompressor,
                 lambda raw: bz2.BZ2File(raw),  # type: ignore[return-value]
                 (EOFError, OSError)),  # ("Invalid data stream" is an OSError)
@@ -127,6 +128,70 @@ class ReadStats:
         }
 
 
+GZIP_WBITS = zlib.MAX_WBITS | 16  # a gzip header and trailer around the deflate stream
+GZIP_PIECE = 16384  # compressed bytes fed at a time: the damage is found within this many
+
+
+class GzipUntilDamaged(io.RawIOBase):
+    """A gzip file's decompressed bytes up to where its compressed data ends early (a log cut
+    off while written: a robot that crashed) or stops being readable (a bad copy). There the
+    stream ends as if the file did, and :attr:`damage` says where and why. Members written
+    one after another read as one stream, and zero bytes after a member are padding, as
+    ``gzip.GzipFile`` reads them; anything else after a member is damage."""
+
+    def __init__(self, raw: BinaryIO) -> None:
+        super().__init__()
+        self._raw = raw
+        self._member = zlib.decompressobj(GZIP_WBITS)
+        self._pending = b""
+        self._offset = 0  # compressed bytes read so far
+        self._ended = False
+        self.damage: str | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: bytearray | memoryview) -> int:  # type: ignore[override]
+        while not self._pending and not self._ended:
+            self._pending = self._inflate_more()
+        n = min(len(buffer), len(self._pending))
+        buffer[:n] = self._pending[:n]
+        self._pending = self._pending[n:]
+        return n
+
+    def _inflate_more(self) -> bytes:
+        """The next decompressed bytes (maybe none yet); at the end, or at damage, none and
+        ``_ended`` set."""
+        member = self._member
+        if member.eof:  # a member ended: zero padding, then maybe a next member
+            data = member.unused_data.lstrip(b"\0")
+            while not data and (piece := self._read()):
+                data = piece.lstrip(b"\0")
+            if not data:
+                self._ended = True
+                return b""
+            member = self._member = zlib.decompressobj(GZIP_WBITS)
+        else:
+            data = member.unconsumed_tail or self._read()
+            if not data:
+                self._ended = True
+                self.damage = (f"compressed data ends at byte {self._offset} before its "
+                               "end-of-stream marker (cut off while written?): read up to there")
+                return b""
+        try:
+            return member.decompress(data, GZIP_PIECE * 4)
+        except zlib.error as e:
+            self._ended = True  # (data is a tail of what was read: it starts here)
+            self.damage = (f"compressed data damaged between bytes {self._offset - len(data)} "
+                           f"and {self._offset} ({e}): read up to there")
+            return b""
+
+    def _read(self) -> bytes:
+        piece = self._raw.read(GZIP_PIECE)
+        self._offset += len(piece)
+        return piece
+
+
 class Source:
     """An input: a path (gzip, bzip2 or xz by magic bytes or suffix: :data:`COMPRESSIONS`)
     or ``-`` for standard input.
@@ -173,15 +238,30 @@ class Source:
         c = self.compression
         if c is None:
             return data[:SNIFF_BYTES]
+        decompressor = c.decompressor()
         try:
-            return c.decompressor().decompress(data, SNIFF_BYTES)
+            head = decompressor.decompress(data, SNIFF_BYTES)
         except c.damaged:
             raise InputError(self.name, f"not a valid {c.name} file") from None
+        if not head and data and len(data) == self.size and not decompressor.eof:
+            raise InputError(self.name, f"{c.name} data damaged or cut short before its "
+                             "first readable bytes")
+        return head
 
     def open(self) -> BinaryIO:
-        """The (decompressed) byte stream."""
+        """The (decompressed) byte stream. A gzip stream ends where its compressed data
+        stops being readable; :attr:`damage` then says where and why."""
         c = self.compression
-        return c.opener(self._raw) if c is not None else self._raw
+        if c is None:
+            return self._raw
+        self._opened = c.opener(self._raw)
+        return self._opened
+
+    @property
+    def damage(self) -> str | None:
+        """Where and why a gzip source's compressed data stopped being readable (None: it
+        did not, or the source is not gzip)."""
+        return getattr(getattr(getattr(self, "_opened", None), "raw", None), "damage", None)
 
     def progress(self) -> tuple[int, int]:
         """(bytes consumed, total bytes) of the file on disk; total 0 when unknown."""
@@ -207,32 +287,44 @@ def read_text_lines(path: Path | str) -> list[str]:
         raise InputError(str(path), "not a text file") from None
 
 
-def text_lines(source: Source) -> Iterator[tuple[int, str, bool]]:
+def text_lines(source: Source, stats: ReadStats | None = None
+               ) -> Iterator[tuple[int, str, bool]]:
     """(line number, line without its end, whether the line was terminated) for a text log.
 
-    Decoding errors are replaced, never fatal; binary data (a NUL byte in the first
-    ``BINARY_SNIFF_BYTES``: an image, a program, a bag read with ``--format carmen``), a
-    damaged compressed stream, and a line longer than ``MAX_LINE_CHARS`` (``/dev/zero``) are
-    an :class:`InputError`.
+    Decoding errors are replaced, never fatal. A compressed stream cut short or damaged ends
+    the lines where it stops being readable (gzip's: the line it stops in comes
+    unterminated; bzip2's and xz's: the lines their decoder had given): a counted warning in
+    ``stats`` saying where, or an :class:`InputError` without ``stats``. Binary data (a NUL
+    byte in the first ``BINARY_SNIFF_BYTES``: an image, a program, a bag read with
+    ``--format carmen``) and a line longer than ``MAX_LINE_CHARS`` (``/dev/zero``) are an
+    :class:`InputError`.
     """
     if b"\0" in source.head[:BINARY_SNIFF_BYTES]:
         raise InputError(source.name, "not a text log: binary data (NUL bytes) near the start")
     damaged = source.compression.damaged if source.compression is not None else ()
     stream = io.TextIOWrapper(source.open(), encoding="utf-8", errors="replace", newline=None)
-    lineno = 0
+    lineno, terminated = 0, True
     try:
         while line := stream.readline(MAX_LINE_CHARS + 1):
             lineno += 1
-            if line.endswith("\n"):
+            terminated = line.endswith("\n")
+            if terminated:
                 yield lineno, line[:-1], True
             elif len(line) > MAX_LINE_CHARS:
                 raise InputError(source.name, f"a line longer than {MAX_LINE_CHARS} characters: "
                                  "not a text log?", lineno)
             else:
                 yield lineno, line, False
-    except damaged as e:
-        raise InputError(source.name, f"compressed data is damaged or truncated ({e})",
-                         lineno + 1) from None
+        if source.damage is not None:
+            where = lineno + terminated  # the line the damage cuts short, or the next
+            if stats is None:
+                raise InputError(source.name, source.damage, where)
+            stats.warn(source.damage, where)
+    except damaged as e:  # bzip2, xz: the lines before it were read
+        message = f"compressed data is damaged or truncated ({e}): read up to there"
+        if stats is None:
+            raise InputError(source.name, message, lineno + 1) from None
+        stats.warn(message, lineno + 1)
     finally:  # the source owns the file (and closes it): let go of it, leave it open
         with suppress(ValueError):  # (already closed by the source)
             stream.detach()
@@ -266,9 +358,31 @@ def container_errors(name: str, what: str) -> Iterator[None]:
         if not (isinstance(e, UnicodeDecodeError | struct.error | EOFError)
                 or _raised_by_library(e)):
             raise
-        lines = str(e).strip().splitlines()
-        first = lines[0] if lines else type(e).__name__
-        raise InputError(name, f"cannot read this {what}: {first}") from None
+        raise InputError(name, f"cannot read this {what}: {first_line(e)}") from None
+
+
+def first_line(e: BaseException) -> str:
+    """An exception's message cut to its first line (some quote a whole message definition),
+    or its type's name when it has none (an ``AssertionError``)."""
+    lines = str(e).strip().splitlines()
+    return lines[0] if lines else type(e).__name__
+
+
+@dataclass
+class RecordWalk:
+    """How far reading a container's records one after another got (a bag whose index, an
+    MCAP file whose summary, cannot be used): messages read, the byte where reading stopped,
+    and why when that was before the end of its data (None: it read to the end)."""
+
+    messages: int = 0
+    stop: int = 0
+    damage: str | None = None
+
+    def report(self, stats: ReadStats, size: int) -> None:
+        """The damage, if any, as a counted warning saying where it starts."""
+        if self.damage is not None:
+            stats.warn(f"unreadable from byte {self.stop} of {size} ({printable(self.damage)})"
+                       f": the {self.messages} messages before it were read")
 
 
 class LogReader(Protocol):

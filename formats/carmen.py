@@ -144,7 +144,7 @@ class CarmenReader:
     def scans(self) -> Iterator[Scan]:
         name = self.source.name
         any_line = False
-        for lineno, line, terminated in text_lines(self.source):
+        for lineno, line, terminated in text_lines(self.source, self.stats):
             self._line = lineno
             tokens = line.split()
             if not tokens:

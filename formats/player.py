@@ -96,7 +96,7 @@ class PlayerReader:
 
     def scans(self) -> Iterator[Scan]:
         any_record = False
-        for lineno, line, terminated in text_lines(self.source):
+        for lineno, line, terminated in text_lines(self.source, self.stats):
             self._line = lineno
             if line.startswith("#"):
                 if "File version" in line:

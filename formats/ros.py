@@ -16,8 +16,12 @@ What is read:
   travel with each scan (a recording sends them on; one that is negative or not finite is
   unknown).
 
-Bad bags (a broken index, a pre-2.0 ``#ROSRECORD`` bag, a truncated file, a damaged message
-definition) give a one-line error naming the file. A LaserScan whose range count contradicts
+A ROS 1 bag whose index rosbags cannot use (cut off while recording: no index, a last chunk
+cut short; an early writer's index) is read chunk after chunk in file order up to the first
+record that cannot be read (``dynslam_formats.rosbag1_chunks``): the index's trouble and
+where the data stop being readable are counted warnings. Other bad bags (a pre-2.0
+``#ROSRECORD`` bag, a damaged ``.db3``, a damaged message definition) give a one-line error
+naming the file and its kind. A LaserScan whose range count contradicts
 its angles (``angle_min + (n − 1)·angle_increment`` farther than one increment and 1% of the
 span from ``angle_max``) is a counted skip: which of the two is wrong cannot be told. Non-finite
 angles or stamps, a zero increment and a bad ``range_max`` are skipped by the common guard
@@ -28,7 +32,7 @@ are kept in log order).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -40,8 +44,10 @@ from dynslam_formats.base import (
     OdometryBuffer,
     ReaderOptions,
     ReadStats,
+    RecordWalk,
     Source,
     container_errors,
+    first_line,
 )
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -117,6 +123,51 @@ def choose_topics(channels: dict[str, tuple[str, int]], options: ReaderOptions, 
     scan = choose_topic("LaserScan", "--topic", scans, options.topic, source, True)
     odom = choose_topic("Odometry", "--odom-topic", odoms, options.odom_topic, source, False)
     return scan or "", odom
+
+
+def container_kind(path: str) -> str:
+    """What to call a file the rosbags reader reads, in its errors."""
+    if path.endswith(".mcap"):
+        return "MCAP file"
+    if path.endswith(".db3"):
+        return "ROS 2 bag (.db3)"
+    return "bag"
+
+
+def typestore_of(definitions: dict[str, str], ros2: bool = False) -> Any:
+    """A rosbags type store holding the types a log's own message definitions give
+    ({message type: definition text, ``.msg`` form with its dependencies}), and the types of
+    ROS 1 Noetic (ROS 2 Humble) they use but do not define: an early bag defines
+    ``roslib/Header``, and its LaserScan's ``Header`` is read as ``std_msgs/Header``."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    for msgtype, text in definitions.items():
+        store.register(get_types_from_msg(text, msgtype))
+    known = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC).fielddefs
+    store.register({t: d for t, d in known.items() if t not in store.fielddefs})
+    return store
+
+
+def log_scans(reader: Any, channels: dict[str, tuple[str, int]],
+              messages: Callable[[set[str]], Iterable[tuple[str, str, Any]]]) -> Iterator[Scan]:
+    """A log's scans, for every ROS reader: counts the topics (``channels``: {topic: (message
+    type, message count)}) in ``reader.stats``, chooses the scan and odometry topics (kept in
+    ``reader.topics``), and turns the messages that ``messages`` gives for the topics wanted
+    (scan, odometry, TF) into scans."""
+    name = reader.source.name
+    for topic, (msgtype, count) in channels.items():
+        reader.stats.records[f"{topic} ({msgtype})"] += count
+    scan_topic, odom_topic = choose_topics(channels, reader.options, name)
+    reader.topics = (scan_topic, odom_topic)
+    handler = RosMessages(reader.stats, scan_topic, odom_topic, name)
+    wanted = {t for t, (m, _) in channels.items()
+              if t in (scan_topic, odom_topic) or m in TF_TYPES}
+    for topic, msgtype, msg in messages(wanted):
+        yield from handler.feed(topic, msgtype, msg)
+    yield from handler.finish()
+    if reader.stats.scans == 0:
+        raise InputError(name, f"no scans on {scan_topic}")
 
 
 class RosMessages:
@@ -217,35 +268,62 @@ class RosbagsReader:
                              "convert it with 'rosbag fix' first")
 
     def scans(self) -> Iterator[Scan]:
-        from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
 
-        path = Path(self.source.path)
-        with container_errors(self.source.name, "bag"):
+        name, kind = self.source.name, container_kind(self.source.path)
+        with container_errors(name, kind):
+            bag = AnyReader([Path(self.source.path)],
+                            default_typestore=get_typestore(Stores.ROS2_HUMBLE))
             try:
-                typestore = get_typestore(Stores.ROS2_HUMBLE)
-                with AnyReader([path], default_typestore=typestore) as bag:
-                    yield from self._read(bag)
-            except AssertionError:
-                raise InputError(self.source.name, "cannot read this bag: its index is not "
-                                 "readable") from None
-            except AnyReaderError as e:
-                raise InputError(self.source.name, f"cannot read this bag: {e}") from None
+                bag.open()
+            except Exception as e:  # (rosbags': AnyReaderError, AssertionError, struct.error)
+                if not self.source.head.startswith(ROSBAG1_MAGIC):
+                    raise InputError(name, f"cannot read this {kind}: {first_line(e)}"
+                                     ) from None
+                yield from self._chunk_scans(first_line(e))
+                return
+            try:
+                yield from self._read(bag)
+            finally:
+                bag.close()
 
     def _read(self, bag: Any) -> Iterator[Scan]:
-        conns = bag.connections
-        for c in conns:
-            self.stats.records[f"{c.topic} ({c.msgtype})"] += c.msgcount
-        name = self.source.name
-        scan_topic, odom_topic = choose_topics(
-            {c.topic: (c.msgtype, c.msgcount) for c in conns}, self.options, name)
-        self.topics = (scan_topic, odom_topic)
-        handler = RosMessages(self.stats, scan_topic, odom_topic, name)
-        wanted = [c for c in conns if c.topic in (scan_topic, odom_topic)
-                  or c.msgtype in TF_TYPES]
-        for conn, _, raw in bag.messages(connections=wanted):
-            msg = bag.deserialize(raw, conn.msgtype)
-            yield from handler.feed(conn.topic, conn.msgtype, msg)
-        yield from handler.finish()
-        if self.stats.scans == 0:
-            raise InputError(name, f"no scans on {scan_topic}")
+        channels: dict[str, tuple[str, int]] = {}
+        for c in bag.connections:
+            channels[c.topic] = (c.msgtype, channels.get(c.topic, ("", 0))[1] + c.msgcount)
+
+        def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
+            chosen = [c for c in bag.connections if c.topic in wanted]
+            for conn, _, raw in bag.messages(connections=chosen):
+                yield conn.topic, conn.msgtype, bag.deserialize(raw, conn.msgtype)
+
+        yield from log_scans(self, channels, messages)
+
+    def _chunk_scans(self, index_trouble: str) -> Iterator[Scan]:
+        """A ROS 1 bag's scans from its chunks read one after another (its index cannot be
+        used: ``index_trouble`` says why): a first walk finds the topics, a second decodes."""
+        from dynslam_formats.rosbag1_chunks import chunk_messages
+
+        name, path = self.source.name, Path(self.source.path)
+        survey = RecordWalk()
+        channels: dict[str, tuple[str, int]] = {}
+        definitions: dict[str, str] = {}
+        for conn, _ in chunk_messages(path, survey):
+            channels[conn.topic] = (conn.msgtype, channels.get(conn.topic, ("", 0))[1] + 1)
+            definitions[conn.msgtype] = conn.msgdef
+        if survey.messages == 0 and survey.damage is not None:
+            raise InputError(name, f"cannot read this bag: neither its index ({index_trouble}) "
+                             f"nor its chunks (from byte {survey.stop}: {survey.damage})")
+        self.stats.warn(f"bag index not usable ({index_trouble}): its chunks were read one "
+                        "after another ('rosbag reindex' would rebuild the index)")
+        survey.report(self.stats, self.source.size)
+        store = typestore_of(definitions)
+
+        def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
+            walk = RecordWalk()
+            for conn, raw in chunk_messages(path, walk):
+                if conn.topic in wanted:
+                    yield conn.topic, conn.msgtype, store.deserialize_ros1(raw, conn.msgtype)
+
+        yield from log_scans(self, channels, messages)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gzip
+import json
 import math
 import subprocess
 import sys
@@ -167,11 +168,69 @@ def test_gzip_by_suffix_and_by_magic(tmp_path):
     assert len(read(tmp_path / "b.clf")[1]) == 2
 
 
-def test_truncated_gzip_is_a_clear_error(tmp_path):
-    data = gzip.compress("".join(flaser(t=i) for i in range(1, 200)).encode())
+GOOD_LINES = "".join(flaser(n=181, t=i) for i in range(1, 200))
+
+
+def test_truncated_gzip_reads_what_is_readable(tmp_path):
+    """Issue 38 item 7: a .log.gz cut short (a robot that crashed while logging) was refused
+    whole; its readable lines are read, and where the compressed data end is a warning."""
+    data = gzip.compress(GOOD_LINES.encode(), mtime=0)
+    cut = data[: len(data) // 2]
+    (tmp_path / "a.log.gz").write_bytes(cut)
+    _, scans, stats = read(tmp_path / "a.log.gz")
+    (reason,) = stats.warnings
+    assert reason.startswith(f"compressed data ends at byte {len(cut)} before its end")
+    line = stats.first_line[reason]
+    assert len(scans) == line - 1 > 50  # every line before the cut one
+    assert stats.skipped == {"damaged last line (log cut off while written)": 1}
+    assert stats.first_line["damaged last line (log cut off while written)"] == line
+
+
+def test_gzip_damaged_midway_reads_up_to_the_damage(tmp_path):
+    """A second gzip member that is not one (a bad copy): the first member's lines are
+    read, and the damage is placed where it starts (after the zero padding)."""
+    first = gzip.compress(GOOD_LINES.encode(), mtime=0)
+    (tmp_path / "a.log.gz").write_bytes(first + b"\0\0" + b"not gzip at all" * 10)
+    _, scans, stats = read(tmp_path / "a.log.gz")
+    assert len(scans) == 199
+    (reason,) = stats.warnings
+    assert reason.startswith(f"compressed data damaged between bytes {len(first) + 2} and ")
+    assert "incorrect header check" in reason and stats.first_line[reason] == 200
+
+
+def test_gzip_members_and_zero_padding_read_as_one_log(tmp_path):
+    data = gzip.compress(flaser().encode()) + gzip.compress(flaser(t=2).encode()) + b"\0" * 9
+    (tmp_path / "a.log.gz").write_bytes(data)
+    _, scans, stats = read(tmp_path / "a.log.gz")
+    assert len(scans) == 2 and not stats.warnings and not stats.skipped
+
+
+def test_truncated_gzip_is_processed_with_one_warning_line(tmp_path):
+    """What the user sees: the run ends 0 with the damage on stderr and in summary.json."""
+    data = gzip.compress(GOOD_LINES.encode(), mtime=0)
     (tmp_path / "a.log.gz").write_bytes(data[: len(data) // 2])
-    with pytest.raises(InputError, match="damaged or truncated"):
-        read(tmp_path / "a.log.gz")
+    proc = subprocess.run([sys.executable, "-m", "dynslam_cli", "process",
+                           str(tmp_path / "a.log.gz"), "-o", str(tmp_path / "out"), "-q"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    warned = [x for x in proc.stderr.splitlines() if "compressed data ends at byte" in x]
+    assert len(warned) == 1 and warned[0].startswith("dynslam: warning: ")
+    summary = json.loads((tmp_path / "out/summary.json").read_text())
+    assert any(k.startswith("compressed data ends") for k in summary["reader"]["warnings"])
+
+
+def test_gzip_without_stats_keeps_the_error(tmp_path):
+    """A plugin reading ``text_lines`` without stats still hears of the damage."""
+    from dynslam_formats.base import Source, text_lines
+
+    data = gzip.compress(GOOD_LINES.encode(), mtime=0)
+    (tmp_path / "a.log.gz").write_bytes(data[: len(data) // 2])
+    source = Source(str(tmp_path / "a.log.gz"))
+    try:
+        with pytest.raises(InputError, match="compressed data ends at byte"):
+            list(text_lines(source))
+    finally:
+        source.close()
 
 
 def test_stdin_is_read(tmp_path):
