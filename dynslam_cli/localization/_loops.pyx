@@ -70,8 +70,13 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
     shape len(thetas) × len(ty) × len(tx); points off the grid count 0. The grid's cell
     (0, 0) is centred on (ox, oy)."""
     cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c, t
-    cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy
+    cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy, b0, b1
     cdef double ct, st, px, py
+    cdef const double* row
+    cdef double* acc
+    cdef bint consecutive = True  # tx = tx[0], tx[0] + 1, ...: a row's cells are contiguous
+    for b in range(1, nx):
+        consecutive = consecutive and tx[b] == tx[0] + b
     out = np.zeros((thetas.shape[0], ny, nx))
     cdef double[:, :, ::1] o = out
     with nogil:
@@ -86,6 +91,15 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
                 for a in range(ny):
                     r = iy + ty[a]
                     if r < 0 or r >= rows:
+                        continue
+                    if consecutive and nx:  # no test per cell: the compiler vectorizes it
+                        c = ix + tx[0]
+                        b0 = max(0, -c)
+                        b1 = min(nx, cols - c)
+                        row = &grid[r, 0]
+                        acc = &o[t, a, 0]
+                        for b in range(b0, b1):
+                            acc[b] += row[c + b]
                         continue
                     for b in range(nx):
                         c = ix + tx[b]
