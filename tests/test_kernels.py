@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dynslam_cli.localization import _graph, _loops
-from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.mapping.grid import GridStack
 from dynslam_cli.types import Pose2D
 
@@ -84,10 +84,12 @@ def test_traced_cells_match_sampling_each_beam_every_cell():
     assert g.memory()["tiles"] > 1  # the scan spans several tiles
 
 
-def test_mean_scores_match_numpy():
+@pytest.mark.parametrize("tx", [np.arange(-5, 6), np.arange(-60, 61, 4)],
+                         ids=["consecutive", "every 4th"])  # (the search's; the loop closer's)
+def test_mean_scores_match_numpy(tx):
     grid = RNG.uniform(0, 1, (60, 80))
     pts = RNG.uniform(-1, 1, (50, 2))
-    tx, ty = np.arange(-5, 6), np.arange(-3, 4)
+    ty = np.arange(-3, 4)
     got = _loops.mean_scores(grid, 0.2, -0.1, 0.05, pts, 1.0, 1.2, np.array([0.3]), tx, ty)[0]
     c, s = math.cos(0.3), math.sin(0.3)
     moved = np.column_stack((1.0 + c * pts[:, 0] - s * pts[:, 1],
@@ -161,3 +163,16 @@ def test_minimum_degree_order_fills_in_less():
     assert sorted(order) == list(range(n))
     assert _fill(n, ei, ej, order) < 0.5 * _fill(n, ei, ej, np.arange(n))
     assert list(_graph.minimum_degree(n, ei, ej)[0]) == list(order)  # deterministic
+
+
+@pytest.mark.parametrize("spread", [0.3, 40.0, 5000.0])
+def test_first_in_cells_keeps_what_unique_keeps(spread):
+    """The local map's thinning: the first point of each cell, in order, as np.unique of
+    the packed cell keys gives it (negative cells and far ones too)."""
+    pts = RNG.normal(0.0, spread, (3000, 2))
+    pts[1000:1100] = pts[:100]  # repeats: their first copies win
+    for cell in (0.025, 0.1):
+        q = np.floor(pts / cell).astype(np.int64)
+        _, first = np.unique((q[:, 0] << 32) ^ (q[:, 1] & 0xFFFFFFFF), return_index=True)
+        np.testing.assert_array_equal(first_in_cells(pts, cell), np.sort(first))
+    assert len(first_in_cells(np.zeros((0, 2)), 0.1)) == 0

@@ -302,3 +302,40 @@ def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t st
             o[m, 1] = y + r * sin(angles[i] + theta)
             m += 1
     return out[:m].copy()
+
+
+def first_in_cells(const double[:, ::1] pts, double cell):
+    """Indices (increasing) of the first point in each ``cell`` square, the square of a
+    point being (floor(x / cell), floor(y / cell)) packed into one 64-bit key as
+    ``(cx << 32) ^ (cy & 0xFFFFFFFF)``: the points ``np.unique`` of those keys would keep,
+    found with a hash table in one pass instead of a sort."""
+    cdef Py_ssize_t n = pts.shape[0], i, size = 16, slot, kept = 0
+    cdef long long key, low = 0xFFFFFFFF
+    cdef unsigned long long h, golden = 0x9E3779B97F4A7C15ULL  # Fibonacci hashing
+    while size < 2 * n:
+        size *= 2
+    cdef int shift = 64
+    cdef Py_ssize_t s = size
+    while s > 1:
+        s //= 2
+        shift -= 1
+    keys_arr = np.zeros(size, dtype=np.int64)
+    used_arr = np.zeros(size, dtype=np.uint8)
+    out_arr = np.empty(n, dtype=np.intp)
+    cdef long long[::1] keys = keys_arr
+    cdef u8[::1] used = used_arr
+    cdef Py_ssize_t[::1] out = out_arr
+    with nogil:
+        for i in range(n):
+            key = ((<long long>floor(pts[i, 0] / cell)) << 32) ^ (
+                (<long long>floor(pts[i, 1] / cell)) & low)
+            h = (<unsigned long long>key) * golden
+            slot = <Py_ssize_t>(h >> shift)
+            while used[slot] and keys[slot] != key:
+                slot = (slot + 1) & (size - 1)
+            if not used[slot]:
+                used[slot] = 1
+                keys[slot] = key
+                out[kept] = i
+                kept += 1
+    return out_arr[:kept]

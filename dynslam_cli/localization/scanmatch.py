@@ -25,7 +25,7 @@ import numpy as np
 
 from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization import _match
-from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
     CorrelativeConfig,
     LogField,
@@ -243,10 +243,7 @@ class LocalMap:
 
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
     """Indices of the first point in each ``cell`` square (in order of first appearance)."""
-    q = np.floor(points / cell).astype(np.int64)
-    key = (q[:, 0] << 32) ^ (q[:, 1] & 0xFFFFFFFF)
-    _, first = np.unique(key, return_index=True)
-    return np.sort(first)
+    return first_in_cells(np.ascontiguousarray(points, dtype=np.float64), cell)
 
 
 class ScanMatcher:
