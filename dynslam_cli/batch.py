@@ -230,32 +230,22 @@ def earlier_row(job: Job) -> dict[str, Any]:
 
 
 def _scores(job: Job) -> dict[str, Any]:
+    """The row's scores (the manifest's truth and relations), as ``dynslam evaluate`` gives
+    them."""
+    from dynslam_cli.job import score_output
+
+    if not job.truth and not job.relations:
+        return {}
+    report = score_output(Path(job.output), Path(job.truth) if job.truth else None,
+                          Path(job.relations) if job.relations else None)
     out: dict[str, Any] = {}
-    folder = Path(job.output)
-    if job.truth:
-        from dynslam_cli.evaluate import MapThresholds, score_run
-        from dynslam_formats.landmarks import read_landmarks
-        from dynslam_formats.mapfile import read_map
-        from dynslam_formats.truth import read_truth
-        from dynslam_formats.tum import read_tum
-
-        s, d = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
-        with open(folder / "landmarks.csv", encoding="utf-8") as f:
-            lms = read_landmarks(f)
-        r = score_run(s.grid, d.grid, read_tum(folder / "trajectory.tum"), lms,
-                      read_truth(Path(job.truth)), MapThresholds(s.free_thresh,
-                                                                 s.occupied_thresh))
-        out["ate_rmse_m"] = r["trajectory"]["ate_rmse_m"]
-        out["odometry_ate_rmse_m"] = r["trajectory"]["odometry_ate_rmse_m"]
-        out["scores"] = r
-    if job.relations:
-        from dynslam_cli.evaluate import relation_errors
-        from dynslam_formats.relations import read_relations
-        from dynslam_formats.tum import read_tum
-
-        r = relation_errors(read_tum(folder / "trajectory.tum"), read_relations(job.relations))
-        out["relation_translational_m"] = r["translational_m"]["mean"]
-        out["relation_rotational_deg"] = r["rotational_deg"]["mean"]
+    if "truth" in report:
+        out["ate_rmse_m"] = report["truth"]["trajectory"]["ate_rmse_m"]
+        out["odometry_ate_rmse_m"] = report["truth"]["trajectory"]["odometry_ate_rmse_m"]
+        out["scores"] = report["truth"]
+    if "relations" in report:
+        out["relation_translational_m"] = report["relations"]["translational_m"]["mean"]
+        out["relation_rotational_deg"] = report["relations"]["rotational_deg"]["mean"]
     return out
 
 

@@ -603,47 +603,9 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
     def work() -> None:
         import json
 
-        from dynslam_cli.errors import InputError
-        from dynslam_cli.evaluate import (
-            MapThresholds,
-            relation_errors,
-            score_changes,
-            score_run,
-        )
-        from dynslam_formats.changes import read_changes
-        from dynslam_formats.landmarks import read_landmarks
-        from dynslam_formats.mapfile import read_map
-        from dynslam_formats.relations import read_relations
-        from dynslam_formats.truth import read_truth
-        from dynslam_formats.tum import read_tum
+        from dynslam_cli.job import score_output
 
-        if not target.exists():
-            raise InputError(str(target), "no such output folder or trajectory file")
-        folder = target if target.is_dir() else None
-        tum = folder / "trajectory.tum" if folder else target
-        report: dict[str, Any] = {"target": str(target)}
-        if truth is not None:
-            if folder is None:
-                raise InputError(str(target), "--truth needs an output folder, not a file")
-            static, dynamic = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
-            try:
-                with open(folder / "landmarks.csv", encoding="utf-8") as f:
-                    landmarks = read_landmarks(f)
-            except (OSError, KeyError, ValueError) as e:
-                raise InputError(str(folder / "landmarks.csv"), f"cannot read: {e}") from None
-            true, trajectory = read_truth(truth), read_tum(tum)
-            report["truth"] = score_run(
-                static.grid, dynamic.grid, trajectory, landmarks, true,
-                MapThresholds(static.free_thresh, static.occupied_thresh))
-            if (folder / "changes.csv").exists():  # (not in folders of older versions)
-                try:
-                    with open(folder / "changes.csv", encoding="utf-8") as f:
-                        events = read_changes(f)
-                except (OSError, KeyError, ValueError) as e:
-                    raise InputError(str(folder / "changes.csv"), f"cannot read: {e}") from None
-                report["truth"]["changes"] = score_changes(events, trajectory, true)
-        if relations is not None:
-            report["relations"] = relation_errors(read_tum(tum), read_relations(relations))
+        report = score_output(target, truth, relations)
         if as_json:
             click.echo(json.dumps(report, indent=2, sort_keys=True))
         else:

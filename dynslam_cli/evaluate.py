@@ -1,8 +1,9 @@
 """Scores against the truth: trajectory (ATE), static and dynamic maps, moved objects,
 vacated places, landmarks; and the Kümmerle et al. (2009) relation metric.
 
-Everything here works on arrays and plain dicts (``truth.json`` as loaded); the CLI reads the
-files. Distances are in metres, angles in degrees where reported.
+Everything here works on arrays and plain dicts (``truth.json`` as loaded);
+``job.score_output`` reads the files. Distances are in metres, angles in degrees where
+reported.
 """
 
 from __future__ import annotations

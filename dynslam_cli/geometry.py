@@ -42,12 +42,6 @@ def interpolate(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
     return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * dth))
 
 
-def polar_to_xy(pose: Pose2D, ranges: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Beam end points (N×2, metres) in the frame that ``pose`` is expressed in."""
-    a = angles + pose.theta
-    return np.column_stack((pose.x + ranges * np.cos(a), pose.y + ranges * np.sin(a)))
-
-
 def transform_points(pose: Pose2D, points: np.ndarray) -> np.ndarray:
     """Points (N×2) given in the frame of ``pose``, expressed in its parent frame."""
     c, s = math.cos(pose.theta), math.sin(pose.theta)

@@ -1,6 +1,7 @@
 """One log through the whole tool: read, run the pipeline, write the output folder
-atomically. Used by ``dynslam process`` (with a progress bar) and ``dynslam batch`` (in
-worker processes or on a Dask cluster), so both honour the same output contract."""
+atomically; and an output folder scored. Used by ``dynslam process`` (with a progress bar),
+``dynslam evaluate`` and ``dynslam batch`` (in worker processes or on a Dask cluster), so
+all honour the same output contract and score it alike."""
 
 from __future__ import annotations
 
@@ -135,6 +136,53 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             on_phase("writing the outputs", 0, 0)
         write_results(tmp, result, config, summary)
     return summary, front.stats
+
+
+def score_output(target: Path, truth: Path | None = None, relations: Path | None = None
+                 ) -> dict[str, Any]:
+    """The scores of an output folder (``trajectory.tum`` alone is enough for relations)
+    against a simulation's ``truth.json`` and the benchmark's relations: what ``dynslam
+    evaluate`` prints and ``dynslam batch`` keeps, {"target", "truth"?, "relations"?}."""
+    from dynslam_cli.errors import InputError
+    from dynslam_cli.evaluate import MapThresholds, relation_errors, score_changes, score_run
+    from dynslam_formats.changes import read_changes
+    from dynslam_formats.landmarks import read_landmarks
+    from dynslam_formats.mapfile import read_map
+    from dynslam_formats.relations import read_relations
+    from dynslam_formats.truth import read_truth
+    from dynslam_formats.tum import read_tum
+
+    if not target.exists():
+        raise InputError(str(target), "no such output folder or trajectory file")
+    folder = target if target.is_dir() else None
+    tum = folder / "trajectory.tum" if folder else target
+    report: dict[str, Any] = {"target": str(target)}
+    if truth is not None:
+        if folder is None:
+            raise InputError(str(target), "--truth needs an output folder, not a file")
+        static, dynamic = read_map(folder / "static.yaml"), read_map(folder / "dynamic.yaml")
+        landmarks = _read_table(folder / "landmarks.csv", read_landmarks)
+        true, trajectory = read_truth(truth), read_tum(tum)
+        report["truth"] = score_run(
+            static.grid, dynamic.grid, trajectory, landmarks, true,
+            MapThresholds(static.free_thresh, static.occupied_thresh))
+        if (folder / "changes.csv").exists():  # (not in folders of older versions)
+            events = _read_table(folder / "changes.csv", read_changes)
+            report["truth"]["changes"] = score_changes(events, trajectory, true)
+    if relations is not None:
+        report["relations"] = relation_errors(read_tum(tum), read_relations(relations))
+    return report
+
+
+def _read_table(path: Path, read: Callable[[Any], Any]) -> Any:
+    """A CSV output file through its reader; what cannot be read is an InputError."""
+    from dynslam_cli.errors import InputError
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return read(f)
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(str(path), f"cannot read: {e}") from None
 
 
 def run_settings(log: str, options: Any, config: Config, format_name: str | None,

@@ -19,7 +19,7 @@ import numpy as np
 
 from dynslam_cli.geometry import compose
 from dynslam_cli.localization.corners import Corner, CornerConfig, detect_corners
-from dynslam_cli.localization.ekf import Ekf, NoiseModel, motion_noise
+from dynslam_cli.localization.ekf import Ekf, NoiseModel, inverse_observe, motion_noise
 from dynslam_cli.mapping.dynamic import TABLE_3
 from dynslam_cli.types import Pose2D, Scan
 
@@ -139,8 +139,7 @@ class CornerSlam:
         scored = []
         near_something = []
         for k, (z, convex) in enumerate(observations):
-            a = pose[2] + z[1]
-            p = (pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a))
+            p = inverse_observe(pose, z)
             if len(lms):
                 close = np.flatnonzero(np.hypot(lms[:, 0] - p[0], lms[:, 1] - p[1])
                                        < cfg.search_radius_m)
@@ -193,8 +192,7 @@ class CornerSlam:
         for k, (z, convex) in enumerate(observations):
             if k in not_new:
                 continue
-            a = pose[2] + z[1]
-            x, y = pose[0] + z[0] * math.cos(a), pose[1] + z[0] * math.sin(a)
+            x, y = inverse_observe(pose, z)
             best = min((c for c in self.candidates if c.convex == convex),
                        key=lambda c: math.hypot(c.x - x, c.y - y), default=None)
             if best is None or math.hypot(best.x - x, best.y - y) > cfg.candidate_radius_m:
