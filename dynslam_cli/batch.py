@@ -157,8 +157,8 @@ def stale_reason(job: Job) -> str | None:
                 "snapshots_s": summary.get("snapshots_s")}
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return "its summary.json is unreadable"
-    differ = [k for k in sorted(_flat(wanted).keys() | _flat(made).keys())
-              if _flat(wanted).get(k) != _flat(made).get(k)]
+    wanted, made = _flat(wanted), _flat(made)
+    differ = [k for k in sorted(wanted.keys() | made.keys()) if wanted.get(k) != made.get(k)]
     if not differ:
         return None
     more = f" and {len(differ) - 3} more" if len(differ) > 3 else ""

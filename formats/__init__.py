@@ -15,7 +15,14 @@ from pathlib import Path
 from typing import Any
 
 from dynslam_cli.errors import InputError, SeveralTopicsError
-from dynslam_formats.base import LogReader, ReaderOptions, ReadStats, Source, guarded
+from dynslam_formats.base import (
+    ROS_ONLY_OPTIONS,
+    LogReader,
+    ReaderOptions,
+    ReadStats,
+    Source,
+    guarded,
+)
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
            "all_readers", "describe_log", "open_log"]
@@ -142,7 +149,7 @@ def describe_log(path: str, options: ReaderOptions, format_name: str | None = No
     try:
         return _describe(path, options, format_name)
     except SeveralTopicsError as e:
-        field = "topic" if e.option == "--topic" else "odom_topic"
+        field = next(f for f, option in ROS_ONLY_OPTIONS if option == e.option)
         each = {t: describe_log(path, replace(options, **{field: t}), format_name)
                 for t in sorted(e.counts)}
         shared = ("path", "format", "records")

@@ -203,6 +203,7 @@ class Source:
     def __init__(self, path: str) -> None:
         self.path = path
         self.name = "<stdin>" if path == "-" else path
+        self._opened: BinaryIO | None = None  # the decompressed stream, once opened
         if path == "-":
             stdin = sys.stdin.buffer
             self._raw: BinaryIO = io.BufferedReader(getattr(stdin, "raw", stdin), 1 << 20)
@@ -261,7 +262,7 @@ class Source:
     def damage(self) -> str | None:
         """Where and why a gzip source's compressed data stopped being readable (None: it
         did not, or the source is not gzip)."""
-        return getattr(getattr(getattr(self, "_opened", None), "raw", None), "damage", None)
+        return getattr(getattr(self._opened, "raw", None), "damage", None)
 
     def progress(self) -> tuple[int, int]:
         """(bytes consumed, total bytes) of the file on disk; total 0 when unknown."""

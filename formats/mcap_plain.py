@@ -23,7 +23,7 @@ from dynslam_formats.base import (
     container_errors,
     first_line,
 )
-from dynslam_formats.ros import MCAP_MAGIC, log_scans, typestore_of
+from dynslam_formats.ros import MCAP_MAGIC, log_scans, tally, typestore_of
 
 DEFINITION_ENCODINGS = ("ros1msg", "ros2msg")
 
@@ -141,8 +141,7 @@ class McapReader:
                 raise InputError(self.source.name, f"cannot read this MCAP file: channel "
                                  f"{printable(ch.topic)} names schema {ch.schema_id}, which "
                                  "the file does not hold")
-            count = channels.get(ch.topic, ("", 0))[1] + counts.get(cid, 0)
-            channels[ch.topic] = (_normalised(schema.name), count)
+            tally(channels, ch.topic, _normalised(schema.name), counts.get(cid, 0))
         store = self._typestore(summary.schemas.values())
 
         def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
@@ -160,7 +159,7 @@ class McapReader:
         schemas: dict[int, Any] = {}
         for schema, channel, _ in stream_messages(path, survey):
             msgtype = _normalised(schema.name) if schema is not None else ""
-            channels[channel.topic] = (msgtype, channels.get(channel.topic, ("", 0))[1] + 1)
+            tally(channels, channel.topic, msgtype)
             if schema is not None:
                 schemas[schema.id] = schema
         if survey.messages == 0 and survey.damage is not None:

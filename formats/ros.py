@@ -149,6 +149,14 @@ def typestore_of(definitions: dict[str, str], ros2: bool = False) -> Any:
     return store
 
 
+def tally(channels: dict[str, tuple[str, int]], topic: str, msgtype: str, count: int = 1
+          ) -> None:
+    """Count ``count`` more messages of ``msgtype`` on ``topic`` in ``channels`` ({topic:
+    (message type, message count)}, as :func:`log_scans` takes it): a topic may come on
+    several connections or channels."""
+    channels[topic] = (msgtype, channels.get(topic, ("", 0))[1] + count)
+
+
 def log_scans(reader: Any, channels: dict[str, tuple[str, int]],
               messages: Callable[[set[str]], Iterable[tuple[str, str, Any]]]) -> Iterator[Scan]:
     """A log's scans, for every ROS reader: counts the topics (``channels``: {topic: (message
@@ -291,7 +299,7 @@ class RosbagsReader:
     def _read(self, bag: Any) -> Iterator[Scan]:
         channels: dict[str, tuple[str, int]] = {}
         for c in bag.connections:
-            channels[c.topic] = (c.msgtype, channels.get(c.topic, ("", 0))[1] + c.msgcount)
+            tally(channels, c.topic, c.msgtype, c.msgcount)
 
         def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
             chosen = [c for c in bag.connections if c.topic in wanted]
@@ -310,7 +318,7 @@ class RosbagsReader:
         channels: dict[str, tuple[str, int]] = {}
         definitions: dict[str, str] = {}
         for conn, _ in chunk_messages(path, survey):
-            channels[conn.topic] = (conn.msgtype, channels.get(conn.topic, ("", 0))[1] + 1)
+            tally(channels, conn.topic, conn.msgtype)
             definitions[conn.msgtype] = conn.msgdef
         if survey.messages == 0 and survey.damage is not None:
             raise InputError(name, f"cannot read this bag: neither its index ({index_trouble}) "

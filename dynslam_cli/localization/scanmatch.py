@@ -353,8 +353,9 @@ class ScanMatcher:
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return post.pose, source, post.cov
-        fused = fused_pose(refined.pose, refined.information, guess, (st, st, sr))
-        if source == "matched" and fused is not None:
+        fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr))
+                 if source == "matched" else None)
+        if fused is not None:
             return fused[0], source, fused[1]
         return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
 
