@@ -258,6 +258,9 @@ class ScanMatcher:
         self._last_odom = Pose2D()
         self._last_increment = Pose2D()
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
+        # the last scan whose match agreed with its wheel odometry: its pose and odometry
+        self._anchor: tuple[Pose2D, Pose2D] | None = None
+        self._agrees = True  # whether the scan's match agreed with its wheel odometry
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
         """Motion since the previous scan, in the previous robot frame, where it came from,
@@ -272,10 +275,13 @@ class ScanMatcher:
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
         cov = None
+        self._agrees = True
         if reference is None:
             pose, source = guess, "odometry"
         else:
             pose, source, cov = self._match(scan, pts, reference, guess, wheel)
+        if self._agrees:
+            self._anchor = (pose, scan.odom)
         inc = relative(self._pose, pose)
         if cov is not None:
             cov = increment_covariance(cov, self._pose)
@@ -307,7 +313,7 @@ class ScanMatcher:
         """The matched pose (matcher frame) of the scan's points, its source and its
         covariance."""
         if self.cfg.method == "correlative" and scan.has_odometry:
-            return self._correlative(pts, reference, guess, wheel)
+            return self._correlative(pts, reference, guess, wheel, scan.odom)
         sigma = self._prior_sigma(scan, wheel)
         ref, normals = reference
         match = icp(ref, normals, pts, guess, self.cfg, sigma)
@@ -321,16 +327,16 @@ class ScanMatcher:
         return guess, "fallback", None
 
     def _correlative(self, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
-                     guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
+                     guess: Pose2D, wheel: Pose2D, odom: Pose2D
+                     ) -> tuple[Pose2D, str, np.ndarray | None]:
         """The correlative search's best pose around the odometry's guess (prior: the
         wheel odometry's noise model), refined by ICP within the search's own uncertainty.
         Its covariance: the refined match's information fused with the odometry's prior
         (as ICP's own matches), or the search's posterior where ICP did not refine it.
         Where too few end points land on the local map's walls, or the best pose lies
-        beyond the odometry's window (stale odometry: still for a few scans, then the whole
-        motion at once), the search is run again around the last motion repeated, and the
-        better-scoring of the two wins ("recovered" if it is the second); nothing good: the
-        odometry."""
+        beyond the odometry's window, the search is run again around each of
+        :meth:`_retry_guesses`, and the best-scoring wins ("recovered" if it is not the
+        first); nothing good: the odometry."""
         cfg = self.cfg
         if len(pts) < 20:
             return guess, "fallback", None
@@ -338,15 +344,19 @@ class ScanMatcher:
         field = self._map.field()
         post = search(field, pts, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
         source = "matched"
-        if post.score < cfg.min_inliers or _outside(post.pose, guess, (st, st, sr),
-                                                     cfg.correlative.window_sigmas):
-            # stale odometry (still, then a jump): the last motion repeated may explain it
-            steady = compose(self._pose, self._last_increment)
-            retry = search(field, pts, steady, (st, st, sr), cfg.correlative, cfg.min_inliers)
-            if retry.score > post.score:
-                post, source = retry, "recovered"
+        agrees = not _outside(post.pose, guess, (st, st, sr), cfg.correlative.window_sigmas)
+        if post.score < cfg.min_inliers or not agrees:
+            for retry_guess, sigma, is_anchored in self._retry_guesses(odom, (st, st, sr)):
+                retry = search(field, pts, retry_guess, sigma, cfg.correlative,
+                               cfg.min_inliers)
+                if retry.score > post.score:
+                    post, source = retry, "recovered"
+                    agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
+                                                          cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers:
+            self._agrees = False
             return guess, "fallback", None
+        self._agrees = agrees
         ref, normals = reference
         refined = icp(ref, normals, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
@@ -358,6 +368,23 @@ class ScanMatcher:
         if fused is not None:
             return fused[0], source, fused[1]
         return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
+
+    def _retry_guesses(self, odom: Pose2D, sigma: tuple[float, float, float]
+                       ) -> list[tuple[Pose2D, tuple[float, float, float], bool]]:
+        """Where the odometry's guess does not explain the scan, the guesses tried next, each
+        with its prior's standard deviations and whether a match there agrees with the
+        odometry: the last motion repeated (stale odometry: still for a few scans, then the
+        whole motion at once); and, where the scan before was placed against its odometry,
+        the odometry since the last scan that agreed with it (that scan before was stale:
+        its content from another moment than its odometry, as a log sorted by lying stamps
+        has it)."""
+        guesses = [(compose(self._pose, self._last_increment), sigma, False)]
+        if self._anchor is not None and self._anchor[0] != self._pose:
+            anchor_pose, anchor_odom = self._anchor
+            since = relative(anchor_odom, odom)
+            st, sr = self._odometry.std(since, self.cfg.correlative.odometry)
+            guesses.append((compose(anchor_pose, since), (st, st, sr), True))
+        return guesses
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
               sigma: Sequence[float]) -> bool:
