@@ -234,9 +234,9 @@ def test_loop_closer_closes_a_revisit():
 
 
 def test_matcher_recovers_from_a_doubled_turn():
-    """Odometry reports twice the real turn (real logs do this in fast turns): the match
+    """Odometry reports twice the real turn (real logs do this in fast turns): ICP's match
     from the odometry's guess fails, a turned guess finds the true motion."""
-    matcher = ScanMatcher(MatchConfig(), NoiseModel())
+    matcher = ScanMatcher(MatchConfig(method="icp"), NoiseModel())
     matcher.increment(scan_at(Pose2D(), Pose2D()))
     true = Pose2D(0.05, 0.0, math.radians(-22))
     reported = Pose2D(0.05, 0.0, math.radians(-46))
