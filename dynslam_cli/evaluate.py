@@ -21,7 +21,8 @@ from dynslam_cli.errors import ScoreError
 from dynslam_cli.geometry import wrap_angles
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap
-from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
+from dynslam_cli.pipeline import DynamicSlam
+from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.types import Scan
 
 UNKNOWN_BAND = 0.01  # |p − 0.5| within this is "never observed" (PGM quantisation included)

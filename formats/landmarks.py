@@ -7,7 +7,7 @@ import csv
 from collections.abc import Iterable
 from typing import TextIO
 
-from dynslam_cli.pipeline import Landmark
+from dynslam_cli.result import Landmark
 
 HEADER = ("id", "x", "y", "kind", "class", "observations", "cov_xx", "cov_xy", "cov_yy")
 

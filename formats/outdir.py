@@ -21,7 +21,7 @@ from typing import Any
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import OutputError
-from dynslam_cli.pipeline import SlamResult
+from dynslam_cli.result import SlamResult
 from dynslam_formats.changes import write_changes
 from dynslam_formats.landmarks import write_landmarks
 from dynslam_formats.mapfile import write_map

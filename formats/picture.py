@@ -17,7 +17,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import BAND_ROWS, OccupancyMap
-from dynslam_cli.pipeline import Landmark
+from dynslam_cli.result import Landmark
 
 DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)

@@ -57,7 +57,8 @@ from dynslam_cli import __version__
 from dynslam_cli.config import Config
 from dynslam_cli.geometry import compose, inverse, relative
 from dynslam_cli.mapping.grid import OccupancyMap, probability
-from dynslam_cli.pipeline import DynamicSlam, Landmark, SlamResult
+from dynslam_cli.pipeline import DynamicSlam
+from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.base import beam_geometry
 from dynslam_formats.mapfile import class_masks

@@ -158,7 +158,7 @@ def test_kept_scans_come_back_as_they_went_in_in_two_bytes_a_reading_when_they_c
     """The scans kept for the final rebuild: readings written to the mm (or the cm, past
     65 m) take 2 bytes, any others 4 (float32, as the rebuild reads them); every reading,
     no-returns and invalid ones included, comes back as the float32 it was."""
-    from dynslam_cli.pipeline import ScanStore
+    from dynslam_cli.scanstore import ScanStore
     from dynslam_cli.types import Scan
 
     rng = np.random.default_rng(3)

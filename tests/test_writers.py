@@ -11,7 +11,7 @@ from ruamel.yaml import YAML
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.mapping.grid import OccupancyMap
-from dynslam_cli.pipeline import Landmark
+from dynslam_cli.result import Landmark
 from dynslam_formats.landmarks import HEADER, read_landmarks, write_landmarks
 from dynslam_formats.mapfile import read_map, write_map
 from dynslam_formats.tum import evo_ready, read_tum, write_tum
