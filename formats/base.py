@@ -518,12 +518,17 @@ class ReaderFilter:
         return getattr(self.reader, name)
 
 
+NO_VALID_READING = ("no valid reading (every range NaN, negative, or outside the laser's "
+                    "range_min..range_max)")
+
+
 class ScanGuard(ReaderFilter):
     """A reader's scans as the core may use them, whatever the input: finite time stamp,
     finite and bounded poses, finite beam angles making at most one turn, at most
     ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
     readings marked invalid, at LaserScan precision (:class:`SinglePrecision`), the laser
-    mount held steady (:class:`SteadyMount`). Any other scan is a counted, reported skip.
+    mount held steady (:class:`SteadyMount`). Any other scan, and one without a single valid
+    reading, is a counted, reported skip.
     A time stamp that does not increase is a counted warning and the scan is kept in file
     order: real logs have a few (Radish intel and infinite-corridor), and the corrected
     Radish logs stamp every scan alike."""
@@ -538,6 +543,13 @@ class ScanGuard(ReaderFilter):
         single, steady = SinglePrecision(), SteadyMount()
         for scan in self.reader.scans():
             problem = scan_problem(scan)
+            if problem is None:
+                negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
+                if negative.any():
+                    scan = dataclasses.replace(scan,
+                                               ranges=np.where(negative, np.nan, scan.ranges))
+                if np.isnan(scan.ranges).all():
+                    problem = NO_VALID_READING
             if problem is not None:
                 self.stats.skip(problem, scan.source_line)
                 skipped += 1
@@ -550,9 +562,6 @@ class ScanGuard(ReaderFilter):
             if scan.max_range > MAX_RANGE_M:
                 self.stats.warn(f"max range above {MAX_RANGE_M:g} m capped", scan.source_line)
                 scan = dataclasses.replace(scan, max_range=MAX_RANGE_M)
-            negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
-            if negative.any():
-                scan = dataclasses.replace(scan, ranges=np.where(negative, np.nan, scan.ranges))
             yield steady(single(scan))
         if skipped and not passed:
             raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("

@@ -332,3 +332,73 @@ def test_an_odometry_jump_of_56_km_and_back_does_not_stall(tmp_path):
                        timeout=300)
     assert r.returncode == 1 and "map.max_extent_m" in r.stderr, r.stderr  # the map's bound
     assert time.perf_counter() - start < 60  # (was 520 s; about 1 s now)
+
+
+INVALID_SCANS = {  # how a LaserScan can hold no valid reading: (ranges, range_min, range_max)
+    "all NaN": (float("nan"), 0.02, 20.0),
+    "all negative": (-1.0, 0.02, 20.0),
+    "all beyond range_max": (25.0, 0.02, 20.0),
+    "range_min above range_max": (5.0, 30.0, 20.0),
+}
+
+
+def invalid_scans_log(tmp_path, fmt: str, kind: str, every: int, monkeypatch) -> str:
+    """A short simulated hall in ``fmt`` whose every ``every``-th LaserScan holds no valid
+    reading, in the way ``kind`` says."""
+    import dataclasses
+
+    import numpy as np
+
+    from dynslam_cli.simulate import LaserModel, build_world, simulate
+    from dynslam_formats import simlogs
+
+    value, range_min, range_max = INVALID_SCANS[kind]
+    made = getattr(simlogs._messages, "original", simlogs._messages)
+    count = iter(range(10 ** 6))
+
+    def messages(ts, step, laser):
+        scan, odom, ns = made(ts, step, laser)
+        if next(count) % every == 0:
+            scan = dataclasses.replace(scan, ranges=np.full(len(scan.ranges), value, np.float32),
+                                       range_min=range_min, range_max=range_max)
+        return scan, odom, ns
+
+    messages.original = made
+    monkeypatch.setattr(simlogs, "_messages", messages)
+    steps, _ = simulate(build_world("hall"), 3.0, 10.0, 0)
+    tmp_path.mkdir()
+    path = tmp_path / {"rosbag1": "log.bag", "rosbag2": "log2", "rosbag2-mcap": "log2m",
+                       "mcap": "log.mcap"}[fmt]
+    simlogs.write_simulated(fmt, path, steps, LaserModel())
+    return str(path)
+
+
+@pytest.mark.parametrize("fmt", ["rosbag1", "rosbag2", "rosbag2-mcap", "mcap"])
+@pytest.mark.parametrize("kind", sorted(INVALID_SCANS))
+def test_laserscans_without_a_valid_reading_are_skipped_or_one_line(cli, tmp_path, fmt, kind,
+                                                                     monkeypatch):
+    """No valid reading in any scan: one line, exit 1. In some scans: those are counted
+    skips, the rest is processed (once an IndexError from the change events)."""
+    every = invalid_scans_log(tmp_path / "all", fmt, kind, 1, monkeypatch)
+    r = cli("process", every, "-o", tmp_path / "all_out", "-q")
+    assert r.exit_code == 1 and r.stderr.count("\n") == 1, r.stderr
+    assert "no usable scans" in r.stderr and "no valid reading" in r.stderr
+    some = invalid_scans_log(tmp_path / "some", fmt, kind, 3, monkeypatch)
+    r = cli("process", some, "-o", tmp_path / "some_out", "-q")
+    assert r.exit_code == 0, r.stderr
+    summary = json.loads((tmp_path / "some_out" / "summary.json").read_text())
+    assert summary["scans_processed"] == 20
+    assert sum(v for k, v in summary["reader"]["skipped"].items()
+               if "no valid reading" in k) == 11
+
+
+def test_a_log_of_scans_that_see_nothing_in_range_is_processed(cli, tmp_path):
+    """Every beam a no-return (an open field): valid, if empty, maps; no traceback from the
+    change events over nothing."""
+    log = tmp_path / "open.log"
+    far = " ".join(["80.0"] * 181)
+    log.write_text("".join(f"FLASER 181 {far} {0.1 * k} 0 0 {0.1 * k} 0 0 {k} h {k}\n"
+                           for k in range(12)))
+    r = cli("process", log, "-o", tmp_path / "out", "-q")
+    assert r.exit_code == 0, r.stderr
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["scans_processed"] == 12

@@ -159,7 +159,9 @@ class ChangeRecorder:
         ok = (rising_scans < limit) & ~np.isin(rising, self.contested)
         rising, rising_scans = rising[ok], rising_scans[ok]
         order = np.lexsort((rising_scans, rising))
-        last = order[np.append(rising[order][1:] != rising[order][:-1], True)]
+        is_last = np.ones(len(order), bool)  # (none where nothing rose: a log of no returns)
+        is_last[:-1] = rising[order][1:] != rising[order][:-1]
+        last = order[is_last]
         self._crossed, self._crossed_scan = array("q", cells.tobytes()), array("i")
         self._crossed_scan.frombytes(scans.astype(np.int32).tobytes())
         self._rising, self._rising_scan = array("q", rising[last].tobytes()), array("i")
