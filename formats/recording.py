@@ -25,7 +25,17 @@ topic                 type                                 sent
 ``/odometry_path``    nav_msgs/Path                        the log's odometry, the same
 ``/landmarks``        visualization_msgs/MarkerArray       corners, static green, dynamic
                                                            orange, the same
+``/changes``          visualization_msgs/MarkerArray       changes.csv's events: at each
+                                                           event's first sighting, every
+                                                           event seen by then (a disc of
+                                                           its size and a label, colours
+                                                           of map.png); then the final list
 ====================  ===================================  =================================
+
+The events are known once the run is over (with the pose graph they are read from the maps
+rebuilt on the optimized trajectory), so ``/changes`` is written at the end, each message
+stamped with the log time its event was first seen: played back, each event appears when
+it happened.
 
 Grids and landmarks are sent only when they changed, and all of them once more at the end,
 after the pose graph's final optimization: that last ``/map`` is ``static.pgm`` cell for cell
@@ -56,19 +66,21 @@ import numpy as np
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
 from dynslam_cli.geometry import compose, inverse, relative
+from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap, probability
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.base import beam_geometry
 from dynslam_formats.mapfile import class_masks
-from dynslam_formats.picture import LANDMARK_RGB
+from dynslam_formats.picture import CHANGE_RGB, LANDMARK_RGB
 
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100  # nav_msgs/OccupancyGrid cell values
 PATH_STEP_M, PATH_STEP_RAD = 0.1, math.radians(5.0)
 PATH_MAX_POSES = 1000  # in a running /path (the last one holds every scan)
 LANDMARK_DIAMETER_M = 0.2
+EVENT_MIN_DIAMETER_M = 0.3  # an event's disc is as wide as its size, and at least this
 
 TF, SCAN, GRID, PATH, MARKERS = ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/LaserScan",
                                  "nav_msgs/msg/OccupancyGrid", "nav_msgs/msg/Path",
@@ -76,7 +88,8 @@ TF, SCAN, GRID, PATH, MARKERS = ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/Lase
 TOPICS: tuple[tuple[str, str, bool], ...] = (  # (topic, type, latched: transient local)
     ("/tf_static", TF, True), ("/tf", TF, False), ("/scan", SCAN, False),
     ("/map", GRID, True), ("/dynamic_map", GRID, True), ("/path", PATH, False),
-    ("/odometry_path", PATH, False), ("/landmarks", MARKERS, False))
+    ("/odometry_path", PATH, False), ("/landmarks", MARKERS, False),
+    ("/changes", MARKERS, True))
 
 
 def occupancy_values(prob: np.ndarray, free_thresh: float, occupied_thresh: float
@@ -287,6 +300,7 @@ class Recording:
                             grid.origin_y, grid.resolution)
         self._send_paths(stamp, result.trajectory, odometry)
         self._send_landmarks(stamp, result.landmarks)
+        self._send_changes(stamp, result.changes)
         self.close()
         return {"file": self.path.name, "bytes": self.path.stat().st_size,
                 "period_s": self.period, "messages": dict(sorted(self.counts.items()))}
@@ -393,26 +407,60 @@ class Recording:
         if self._last_sent.get("/landmarks") == state:
             return
         self._last_sent["/landmarks"] = state
-        t = self.t
-        Marker = t["visualization_msgs/msg/Marker"]  # noqa: N806 - a message class
         markers = []
         for k, cls in enumerate(("static", "dynamic")):
-            points = [t["geometry_msgs/msg/Point"](x=lm.x, y=lm.y, z=0.0)
+            points = [self.t["geometry_msgs/msg/Point"](x=lm.x, y=lm.y, z=0.0)
                       for lm in landmarks if lm.cls == cls]
-            r, g, b = (c / 255.0 for c in LANDMARK_RGB[cls])
             d = LANDMARK_DIAMETER_M
-            markers.append(Marker(
-                header=self._header(stamp, MAP_FRAME), ns=f"{cls} landmarks", id=k,
-                type=Marker.SPHERE_LIST, action=Marker.ADD if points else Marker.DELETE,
-                pose=self._pose(0.0, 0.0, 0.0),
-                scale=t["geometry_msgs/msg/Vector3"](x=d, y=d, z=d),
-                color=t["std_msgs/msg/ColorRGBA"](r=r, g=g, b=b, a=1.0),
-                lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
-                frame_locked=False, points=points, colors=[], texture_resource="",
-                texture=t["sensor_msgs/msg/CompressedImage"](
-                    header=self._header(stamp, ""), format="", data=np.zeros(0, np.uint8)),
-                uv_coordinates=[], text="", mesh_resource="",
-                mesh_file=t["visualization_msgs/msg/MeshFile"](
-                    filename="", data=np.zeros(0, np.uint8)),
-                mesh_use_embedded_materials=False))
-        self._send("/landmarks", stamp, t[MARKERS](markers=markers))
+            markers.append(self._marker(stamp, f"{cls} landmarks", k, "SPHERE_LIST",
+                                        (0.0, 0.0), (d, d, d), LANDMARK_RGB[cls],
+                                        points=points, add=bool(points)))
+        self._send("/landmarks", stamp, self.t[MARKERS](markers=markers))
+
+    def _send_changes(self, stamp: float, events: list[ChangeEvent]) -> None:
+        """At each event's first sighting, every event seen by then; at ``stamp`` (the
+        run's end) the final list (an empty one if nothing changed)."""
+        events = sorted(events, key=lambda e: (e.first_s, e.id))
+        for k, e in enumerate(events):
+            if k + 1 < len(events) and events[k + 1].first_s == e.first_s:
+                continue  # (one message for events first seen together)
+            self._send("/changes", min(e.first_s, stamp), self._event_markers(
+                min(e.first_s, stamp), events[:k + 1]))
+        self._send("/changes", stamp, self._event_markers(stamp, events))
+
+    def _event_markers(self, stamp: float, events: list[ChangeEvent]) -> Any:
+        """A disc and a label per event, in changes.csv's colours of map.png."""
+        markers = []
+        for e in events:
+            d = max(math.sqrt(e.size_m2), EVENT_MIN_DIAMETER_M)
+            rgb = CHANGE_RGB[e.kind]
+            markers.append(self._marker(stamp, e.kind, e.id, "CYLINDER", (e.x, e.y),
+                                        (d, d, 0.02), rgb, alpha=0.5))
+            markers.append(self._marker(stamp, f"{e.kind} labels", e.id, "TEXT_VIEW_FACING",
+                                        (e.x, e.y), (0.0, 0.0, 0.3), rgb,
+                                        text=f"{e.id} {e.kind}"))
+        return self.t[MARKERS](markers=markers)
+
+    def _marker(self, stamp: float, ns: str, ident: int, kind: str, at: tuple[float, float],
+                scale: tuple[float, float, float], rgb: tuple[int, int, int],
+                points: list[Any] | None = None, add: bool = True, alpha: float = 1.0,
+                text: str = "") -> Any:
+        """A visualization_msgs/Marker of type ``kind`` (the message's constant's name) in
+        the map frame, for ever (lifetime 0)."""
+        t = self.t
+        Marker = t["visualization_msgs/msg/Marker"]  # noqa: N806 - a message class
+        r, g, b = (c / 255.0 for c in rgb)
+        return Marker(
+            header=self._header(stamp, MAP_FRAME), ns=ns, id=ident,
+            type=getattr(Marker, kind), action=Marker.ADD if add else Marker.DELETE,
+            pose=self._pose(at[0], at[1], 0.0),
+            scale=t["geometry_msgs/msg/Vector3"](x=scale[0], y=scale[1], z=scale[2]),
+            color=t["std_msgs/msg/ColorRGBA"](r=r, g=g, b=b, a=alpha),
+            lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+            frame_locked=False, points=points or [], colors=[], texture_resource="",
+            texture=t["sensor_msgs/msg/CompressedImage"](
+                header=self._header(stamp, ""), format="", data=np.zeros(0, np.uint8)),
+            uv_coordinates=[], text=text, mesh_resource="",
+            mesh_file=t["visualization_msgs/msg/MeshFile"](
+                filename="", data=np.zeros(0, np.uint8)),
+            mesh_use_embedded_materials=False)

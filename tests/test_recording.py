@@ -123,6 +123,37 @@ def test_a_running_path_stays_bounded_and_spans_the_run(cli, tmp_path, monkeypat
     assert len(paths[-1][1].poses) == len(read_tum(out / "trajectory.tum"))
 
 
+def test_the_change_events_appear_when_they_were_first_seen(recorded):
+    """/changes: at each event's first sighting every event seen by then, and at the end
+    changes.csv's list (a disc and a label per event, in map.png's colours)."""
+    import csv
+
+    from dynslam_formats.picture import CHANGE_RGB
+
+    with open(recorded / "changes.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert rows  # (the hall sample has events)
+    sent = [(t, m) for topic, _, t, m in read_all(recorded / "run.mcap") if topic == "/changes"]
+    assert len(sent) == len({r["first_s"] for r in rows}) + 1
+    start = read_scans(SAMPLE)[0].stamp  # (a Carmen log's stamps are the truth's times)
+
+    def shown(message) -> set[tuple[int, str]]:
+        return {(m.id, m.ns) for m in message.markers if "labels" not in m.ns}
+
+    for t, message in sent[:-1]:
+        seen = {(int(r["id"]), r["kind"]) for r in rows
+                if float(r["first_s"]) <= t * 1e-9 - start + 1e-6}
+        assert shown(message) == seen
+    final = sent[-1][1]
+    assert shown(final) == {(int(r["id"]), r["kind"]) for r in rows}
+    for m in final.markers:
+        row = next(r for r in rows if int(r["id"]) == m.id)
+        assert (m.pose.position.x, m.pose.position.y) == pytest.approx(
+            (float(row["x"]), float(row["y"])), abs=1e-3)
+        assert (m.color.r, m.color.g, m.color.b) == pytest.approx(
+            tuple(c / 255 for c in CHANGE_RGB[row["kind"]]))
+
+
 def test_mcap_reads_it_as_a_ros2_file(recorded):
     from mcap.reader import make_reader
 
@@ -135,7 +166,7 @@ def test_mcap_reads_it_as_a_ros2_file(recorded):
         assert {c.message_encoding for c in summary.channels.values()} == {"cdr"}
         latched = {c.topic for c in summary.channels.values()
                    if "durability: 1" in c.metadata["offered_qos_profiles"]}
-        assert latched == {"/tf_static", "/map", "/dynamic_map"}
+        assert latched == {"/tf_static", "/map", "/dynamic_map", "/changes"}
         counts = {summary.channels[k].topic: v
                   for k, v in summary.statistics.channel_message_counts.items()}
         last: dict[int, int] = {}
