@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import signal
 import subprocess
@@ -300,6 +301,17 @@ def test_real_logs_end_to_end(cli, datasets, tmp_path, name, poses):
     assert r.exit_code == 0, r.stderr
     contract_ok(tmp_path / "o")
     assert len(read_tum(tmp_path / "o" / "trajectory.tum")) == poses
+    assert corners_seen_twice(tmp_path / "o") == []
+
+
+def corners_seen_twice(folder) -> list[tuple[str, str]]:
+    """Pairs of landmarks.csv rows of the same kind closer than 5 cm: one corner, two rows
+    (a landmark the EKF let go of and confirmed anew)."""
+    with open(folder / "landmarks.csv") as f:
+        rows = list(csv.DictReader(f))
+    return [(a["id"], b["id"]) for k, a in enumerate(rows) for b in rows[k + 1:]
+            if a["kind"] == b["kind"] and math.hypot(float(a["x"]) - float(b["x"]),
+                                                     float(a["y"]) - float(b["y"])) < 0.05]
 
 
 def test_every_radish_log_processes(cli, datasets, tmp_path):
@@ -309,6 +321,7 @@ def test_every_radish_log_processes(cli, datasets, tmp_path):
         r = cli("process", log, "-o", tmp_path / log.name, "-q", "--resolution", "0.1")
         assert r.exit_code == 0, (log, r.stderr)
         contract_ok(tmp_path / log.name)
+        assert corners_seen_twice(tmp_path / log.name) == [], log
 
 
 def test_truncated_fields_log_exit_1_one_line(cli, datasets, tmp_path):

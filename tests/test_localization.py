@@ -176,3 +176,20 @@ def test_kept_scans_come_back_as_they_went_in_in_two_bytes_a_reading_when_they_c
         assert np.array_equal(scan.ranges, ranges.astype(np.float32).astype(np.float64),
                               equal_nan=True)
         assert scan.angles is angles and scan.laser == Pose2D(0.1, 0.0, 0.0)
+
+
+def test_a_corner_confirmed_twice_is_one_row_of_the_landmark_map():
+    """A landmark the EKF let go of and confirmed anew is the same corner: one row, fused by
+    information, the first id, the sightings summed; another kind at the same place, or the
+    same kind half a metre away, stays apart."""
+    from dynslam_cli.pipeline import one_per_corner
+
+    cov = np.diag([0.02 ** 2, 0.02 ** 2])
+    xy = np.array([[1.0, 2.0], [1.03, 2.0], [1.0, 2.0], [1.5, 2.0]])
+    rows = one_per_corner([(7, True, 5), (3, True, 10), (4, False, 6), (9, True, 2)], xy,
+                          np.array([cov, cov / 4, cov, cov]), 9.21)
+    assert [(i, convex, seen) for i, convex, seen, _, _, _ in rows] == [
+        (3, True, 15), (4, False, 6), (9, True, 2)]
+    _, _, _, x, y, fused = rows[0]
+    assert x == pytest.approx(1.03 - 0.03 / 5) and y == pytest.approx(2.0)
+    assert fused[0, 0] == pytest.approx(0.02 ** 2 / 5)
