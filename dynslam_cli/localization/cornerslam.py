@@ -45,8 +45,11 @@ class EkfConfig:
     max_landmarks: int = 300
     """At most this many landmarks in the filter (its cost grows with their square): beyond,
     the least recently seen leave it first."""
-    active_window_scans: int = 150
-    """A landmark not seen for this many scans leaves the filter ..."""
+    active_window_scans: int = 30
+    """A landmark not seen for this many scans leaves the filter (the EKF corrects with
+    what it has just seen; a corner seen again after longer is matched under a pose that
+    drifted meanwhile, a loop closure nothing verified, and is confirmed anew instead: the
+    landmark map fuses the two, and the pose graph closes the loop) ..."""
     keep_observations: int = 5
     """... and is kept in the landmark map if it was seen at least this often."""
     noise: NoiseModel = field(default_factory=NoiseModel)
