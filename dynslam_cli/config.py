@@ -197,8 +197,10 @@ class Config:
         checks += [
             (min(ch.blob_gap_m, ch.track_gate_m, ch.merge_distance_m) > 0,
              "changes: blob_gap_m, track_gate_m and merge_distance_m must be > 0"),
-            (ch.track_gap_s >= 0 and ch.still_s >= 0 and ch.moving_speed_m_s > 0,
-             "changes: track_gap_s and still_s must be >= 0, moving_speed_m_s > 0"),
+            (min(ch.track_gap_s, ch.still_s, ch.join_gap_s, ch.walker_speed_m_s) >= 0
+             and ch.moving_speed_m_s > 0,
+             "changes: track_gap_s, still_s, join_gap_s and walker_speed_m_s must be >= 0, "
+             "moving_speed_m_s > 0"),
             (ch.min_scans >= 1 and ch.min_area_m2 >= 0,
              "changes: min_scans must be >= 1, min_area_m2 >= 0"),
         ]

@@ -60,6 +60,13 @@ class ChangeConfig:
     walker stands nowhere that long."""
     merge_distance_m: float = 0.3
     """Stationary tracks whose places lie this close (metres) are one object."""
+    join_gap_s: float = 2.0
+    """Two moving tracks are one mover's if the second begins at most this long after the
+    first was last seen (seconds; or while it is still seen: a walker's two legs) ..."""
+    walker_speed_m_s: float = 2.0
+    """... no farther from the first's last place than ``track_gate_m`` plus this speed
+    (m/s) times the time between: a person who stops, or is hidden a moment, and walks on
+    is one track."""
     min_scans: int = 5
     """An event needs evidence from at least this many scans."""
     min_area_m2: float = 0.02
@@ -227,7 +234,7 @@ def _tracks(recorder: ChangeRecorder
     blobs = recorder.sightings()
     stamps = np.asarray(recorder.stamps)
     res = recorder.grids.resolution
-    moving, still, trail = [], [], [np.zeros((0, 3))]
+    movers, still, trail = [], [], [np.zeros((0, 3))]
     for members in _link(blobs, stamps, config.track_gate_m, config.track_gap_s):
         b = blobs[members]
         t = stamps[b[:, SCAN].astype(np.int64)]
@@ -237,12 +244,51 @@ def _tracks(recorder: ChangeRecorder
         if np.hypot(*(b[:, CX:CY + 1] - b[0, CX:CY + 1]).T).max() < config.moving_distance_m:
             continue  # (jitter at an object's edge)
         trail.append(np.column_stack((t, b[:, CX:CY + 1])))
+        movers.append((t, b))
+    moving = []
+    for t, b in _one_per_mover(movers, config):
         if len(b) >= config.min_scans:
             size = np.median((b[:, X1] - b[:, X0] + res) * (b[:, Y1] - b[:, Y0] + res))
             moving.append(ChangeEvent(0, "moving", float(t[0]), float(t[-1]),
                                       float(b[:, CX].mean()), float(b[:, CY].mean()),
                                       float(size), len(b)))
     return moving, np.vstack(trail), still
+
+
+def _one_per_mover(tracks: list[tuple[np.ndarray, np.ndarray]], config: ChangeConfig
+                   ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Moving tracks (stamps, blobs) joined where they are one mover's: in order of their
+    first sighting, a track continues the one it begins closest to, among those last seen
+    at most ``join_gap_s`` before it begins (or still seen) within ``track_gate_m`` plus
+    ``walker_speed_m_s`` times the time between (where the other was at that moment, if
+    it is still seen)."""
+    order = sorted(range(len(tracks)), key=lambda k: (tracks[k][0][0], k))
+    joined: list[list[int]] = []
+    for k in order:
+        t0, first = tracks[k][0][0], tracks[k][1][0, CX:CY + 1]
+        best, best_d = None, math.inf
+        for group in joined:
+            t, b = _merged([tracks[j] for j in group])
+            gap = t0 - t[-1]
+            if gap > config.join_gap_s:
+                continue
+            at = min(np.searchsorted(t, t0, side="right") - 1, len(t) - 1)
+            d = float(np.hypot(*(first - b[max(at, 0), CX:CY + 1])))
+            if d <= config.track_gate_m + config.walker_speed_m_s * max(gap, 0.0) and d < best_d:
+                best, best_d = group, d
+        if best is None:
+            joined.append([k])
+        else:
+            best.append(k)
+    return [_merged([tracks[j] for j in group]) for group in joined]
+
+
+def _merged(tracks: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Tracks (stamps, blobs) as one, in time order."""
+    t = np.concatenate([t for t, _ in tracks])
+    b = np.concatenate([b for _, b in tracks])
+    order = np.argsort(t, kind="stable")
+    return t[order], b[order]
 
 
 def _link(blobs: np.ndarray, stamps: np.ndarray, gate: float, gap_s: float
