@@ -201,8 +201,8 @@ class Config:
              and ch.moving_speed_m_s > 0,
              "changes: track_gap_s, still_s, join_gap_s and walker_speed_m_s must be >= 0, "
              "moving_speed_m_s > 0"),
-            (ch.min_scans >= 1 and ch.min_area_m2 >= 0,
-             "changes: min_scans must be >= 1, min_area_m2 >= 0"),
+            (ch.min_scans >= 1 and ch.min_area_m2 >= 0 and ch.max_object_m2 > 0,
+             "changes: min_scans must be >= 1, min_area_m2 >= 0, max_object_m2 > 0"),
         ]
         r = self.record
         checks += [

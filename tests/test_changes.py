@@ -96,6 +96,8 @@ def test_change_thresholds_are_checked():
         load_config(overrides={"changes": {"track_gate_m": -1.0}})
     with pytest.raises(ConfigError, match="walker_speed_m_s"):
         load_config(overrides={"changes": {"walker_speed_m_s": -2.0}})
+    with pytest.raises(ConfigError, match="max_object_m2"):
+        load_config(overrides={"changes": {"max_object_m2": 0.0}})
 
 
 def test_people_walking_on_a_real_log_are_moving_tracks(datasets, tmp_path, cli):

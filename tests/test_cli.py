@@ -322,6 +322,9 @@ def test_every_radish_log_processes(cli, datasets, tmp_path):
         assert r.exit_code == 0, (log, r.stderr)
         contract_ok(tmp_path / log.name)
         assert corners_seen_twice(tmp_path / log.name) == [], log
+        with open(tmp_path / log.name / "changes.csv") as f:
+            sizes = [float(e["size_m2"]) for e in csv.DictReader(f) if e["kind"] != "moving"]
+        assert max(sizes, default=0.0) <= 4.0, log  # [changes] max_object_m2
 
 
 def test_truncated_fields_log_exit_1_one_line(cli, datasets, tmp_path):

@@ -71,6 +71,10 @@ class ChangeConfig:
     """An event needs evidence from at least this many scans."""
     min_area_m2: float = 0.02
     """A vacated place needs at least this many square metres of cells gone Free."""
+    max_object_m2: float = 4.0
+    """An object that appeared or vacated its place is at most this large (square metres of
+    its footprint: a pallet, a table, a parked cart): beyond, it is the map disagreeing
+    with itself (a wing drawn twice, a wall seen through a doorway), not reported."""
 
 
 @dataclass(frozen=True)
@@ -215,6 +219,7 @@ def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, fl
         return []
     moving, trail, still = _tracks(recorder)
     found = [*moving, *_standing_objects(recorder, still), *_vacated_static(recorder, trail)]
+    found = [e for e in found if e.kind == "moving" or e.size_m2 <= config.max_object_m2]
     found.sort(key=lambda e: (e.first_s, e.x, e.y, e.kind))
     places = np.array([(x, y) for _, x, y in landmarks], dtype=np.float64).reshape(-1, 2)
     ids = np.array([i for i, _, _ in landmarks], dtype=np.int64)
