@@ -35,8 +35,8 @@ from dynslam_cli.evaluate import (  # noqa: E402
     score_changes,
     score_events,
     score_run,
-    snapshots_at,
 )
+from dynslam_cli.pipeline import snapshots_at  # noqa: E402
 from dynslam_cli.simulate import (  # noqa: E402
     WORLD_NAMES,
     LaserModel,

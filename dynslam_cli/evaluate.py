@@ -10,20 +10,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from dynslam_cli.config import Config
 from dynslam_cli.errors import ScoreError
 from dynslam_cli.geometry import wrap_angles
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap
-from dynslam_cli.pipeline import DynamicSlam
-from dynslam_cli.result import Landmark, SlamResult
-from dynslam_cli.types import Scan
+from dynslam_cli.result import Landmark
 
 UNKNOWN_BAND = 0.01  # |p − 0.5| within this is "never observed" (PGM quantisation included)
 MIN_MATCHED = 0.5  # a score needs at least this share of the poses (relations) it could match
@@ -565,22 +562,3 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
             "unmatched": int((~ok).sum()),
             "translational_m": stats(trans), "translational_squared_m2": stats(trans ** 2),
             "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2)}
-
-
-def snapshots_at(scans: Iterable[Scan], config: Config, times: list[float]
-                 ) -> tuple[SlamResult, list[tuple[float, OccupancyMap, OccupancyMap]]]:
-    """Run the pipeline and take (time, S, D) just before the first scan at or after each of
-    ``times``, and at the end (for :func:`score_events`)."""
-    slam = DynamicSlam(config)
-    pending = sorted(times)
-    snaps: list[tuple[float, OccupancyMap, OccupancyMap]] = []
-    last = 0.0
-    for scan in scans:
-        while pending and scan.stamp >= pending[0]:
-            snaps.append((pending.pop(0), slam.grids.snapshot("static").dense(),
-                          slam.grids.snapshot("dynamic").dense()))
-        slam.step(scan)
-        last = scan.stamp
-    snaps.append((last + 1.0, slam.grids.snapshot("static"), slam.grids.snapshot("dynamic")))
-    return slam.result(), snaps
-

@@ -32,7 +32,7 @@ from dynslam_cli.mapping.dynamic import (
     TABLE_3,
     DynamicMapper,
 )
-from dynslam_cli.mapping.grid import GridStack
+from dynslam_cli.mapping.grid import GridStack, OccupancyMap
 from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.scanstore import ScanStore
 from dynslam_cli.types import Pose2D, Scan
@@ -296,3 +296,21 @@ def run(scans: Iterable[Scan], config: Config,
         if on_scan is not None:
             on_scan(i, scan, slam)
     return slam.result(on_phase)
+
+
+def snapshots_at(scans: Iterable[Scan], config: Config, times: list[float]
+                 ) -> tuple[SlamResult, list[tuple[float, OccupancyMap, OccupancyMap]]]:
+    """Run the pipeline and take (time, S, D) just before the first scan at or after each of
+    ``times``, and at the end (for dynslam_cli.evaluate.score_events: the benches)."""
+    slam = DynamicSlam(config)
+    pending = sorted(times)
+    snaps: list[tuple[float, OccupancyMap, OccupancyMap]] = []
+    last = 0.0
+    for scan in scans:
+        while pending and scan.stamp >= pending[0]:
+            snaps.append((pending.pop(0), slam.grids.snapshot("static").dense(),
+                          slam.grids.snapshot("dynamic").dense()))
+        slam.step(scan)
+        last = scan.stamp
+    snaps.append((last + 1.0, slam.grids.snapshot("static"), slam.grids.snapshot("dynamic")))
+    return slam.result(), snaps
