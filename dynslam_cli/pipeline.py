@@ -124,17 +124,17 @@ class DynamicSlam:
         if loops.wants_node(local):
             loops.add_node(local, scan_points(scan, self.config.match.max_range_m,
                                               self.config.match.subsample))
-        node = len(loops.front) - 1
-        offset = relative(loops.front[node], local)
+        node = len(loops.local_poses) - 1
+        offset = relative(loops.local_poses[node], local)
         self._nodes.append(node)
         self._node_offsets.extend((offset.x, offset.y, offset.theta))
         return compose(loops.pose(node), offset)
 
     def to_map(self, points: np.ndarray) -> np.ndarray:
         """EKF-frame positions (N×2) into the map frame by the current graph correction."""
-        if self._loops is None or not self._loops.front or len(points) == 0:
+        if self._loops is None or not self._loops.local_poses or len(points) == 0:
             return points
-        return transform_points(self._loops.correction(len(self._loops.front) - 1), points)
+        return transform_points(self._loops.correction(len(self._loops.local_poses) - 1), points)
 
     def measure(self, scan: Scan) -> Measurement:
         """The control input (scan-matched motion where the match is good, else odometry)
@@ -212,7 +212,7 @@ class DynamicSlam:
             out.update(scan_matches=m["matched"] + m["recovered"],
                        scan_match_recoveries=m["recovered"], odometry_fallbacks=m["fallback"])
         if self._loops is not None:
-            out.update(graph_nodes=len(self._loops.front),
+            out.update(graph_nodes=len(self._loops.local_poses),
                        loop_closure_attempts=self._loops.attempts,
                        loop_closures=self._loops.closures)
         return out

@@ -227,7 +227,7 @@ def test_loop_closer_closes_a_revisit():
             relative(relative(poses[0], q), relative(path[0], t)) for q, t in zip(
                 poses, path, strict=True)))
 
-    open_loop = worst(closer.front)
+    open_loop = worst(closer.local_poses)
     closed = worst([closer.pose(k) for k in range(len(path))])
     assert open_loop > 0.12
     assert closed < 0.5 * open_loop

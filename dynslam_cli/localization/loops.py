@@ -333,7 +333,7 @@ class LoopCloser:
         self.match = match
         self.ekf = ekf
         self.graph = PoseGraph()
-        self.front: list[Pose2D] = []  # the EKF's pose at each node
+        self.local_poses: list[Pose2D] = []  # the EKF's pose at each node
         self.points: list[np.ndarray] = []  # each node's scan points, robot frame
         self.path: list[float] = []  # distance driven up to each node
         self.closures = 0
@@ -343,23 +343,23 @@ class LoopCloser:
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
 
-    def wants_node(self, front_pose: Pose2D) -> bool:
-        if not self.front:
+    def wants_node(self, local_pose: Pose2D) -> bool:
+        if not self.local_poses:
             return True
-        d = relative(self.front[-1], front_pose)
+        d = relative(self.local_poses[-1], local_pose)
         return (math.hypot(d.x, d.y) >= self.cfg.node_distance_m
                 or abs(d.theta) >= math.radians(self.cfg.node_angle_deg))
 
-    def add_node(self, front_pose: Pose2D, points: np.ndarray) -> bool:
+    def add_node(self, local_pose: Pose2D, points: np.ndarray) -> bool:
         """A new node at the EKF's pose, chained to the previous node; then a loop closure
         attempt. Returns True if the graph was optimized (the map frame moved)."""
         graph = self.graph
-        if not self.front:
-            graph.add_node(np.array([front_pose.x, front_pose.y, front_pose.theta]))
-            self._append(front_pose, points, 0.0)
+        if not self.local_poses:
+            graph.add_node(np.array([local_pose.x, local_pose.y, local_pose.theta]))
+            self._append(local_pose, points, 0.0)
             return False
-        k_prev = len(self.front) - 1
-        z = relative(self.front[-1], front_pose)
+        k_prev = len(self.local_poses) - 1
+        z = relative(self.local_poses[-1], local_pose)
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
         st, sr = motion_std(z.x, z.y, z.theta, self.ekf.noise)
@@ -367,7 +367,7 @@ class LoopCloser:
                               * self.cfg.chain_noise_scale ** 2))
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
         step = math.hypot(z.x, z.y)
-        self._append(front_pose, points, self.path[-1] + step)
+        self._append(local_pose, points, self.path[-1] + step)
         self._links.link(k_prev, k, step)
         return self._try_closure(k)
 
@@ -375,9 +375,9 @@ class LoopCloser:
         x = self.graph.poses[k]
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
-    def _append(self, front_pose: Pose2D, points: np.ndarray, path: float) -> None:
+    def _append(self, local_pose: Pose2D, points: np.ndarray, path: float) -> None:
         self._links.add_node()
-        self.front.append(front_pose)
+        self.local_poses.append(local_pose)
         self.points.append(points)
         self.path.append(path)
 
@@ -541,7 +541,7 @@ class LoopCloser:
             self._fields.move_to_end(i)
             return cached
         m = self.cfg.submap_nodes
-        pts = self._submap(i, range(max(0, i - m), min(len(self.front), i + m + 1)))
+        pts = self._submap(i, range(max(0, i - m), min(len(self.local_poses), i + m + 1)))
         field = likelihood_field(pts)
         self._fields[i] = field
         if len(self._fields) > 8:
@@ -550,4 +550,4 @@ class LoopCloser:
 
     def correction(self, node: int) -> Pose2D:
         """The graph's correction of the EKF frame at ``node``: map pose ⊖ EKF pose."""
-        return compose(self.pose(node), inverse(self.front[node]))
+        return compose(self.pose(node), inverse(self.local_poses[node]))
