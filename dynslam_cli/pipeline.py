@@ -23,7 +23,7 @@ import numpy as np
 
 from dynslam_cli.config import Config
 from dynslam_cli.geometry import compose, relative, transform_points, wrap_angles
-from dynslam_cli.localization.cornerslam import CornerSlam
+from dynslam_cli.localization.cornerslam import CornerSlam, one_per_corner
 from dynslam_cli.localization.frontend import Measure, Measurement
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.localization.scanmatch import scan_points
@@ -249,38 +249,6 @@ class DynamicSlam:
         return [Landmark(i, x, y, "convex" if convex else "concave", cls, seen,
                          float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
                 for (i, convex, seen, x, y, cov), cls in zip(corners, classes, strict=True)]
-
-
-def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs: np.ndarray,
-                   gate_chi2: float) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
-    """The landmark map with one row per corner: a landmark the EKF let go of and confirmed
-    anew when the robot came back is the same corner twice. Landmarks (id, convex,
-    observations) of the same kind whose positions ``xy`` agree within their combined
-    covariance (``covs``, N×2×2; the association gate ``gate_chi2``, χ² 2 dof) are one:
-    the first id, the observations summed, the positions fused by their information.
-    In order of id; returns (id, convex, observations, x, y, covariance)."""
-    merged: list[list] = []  # [id, convex, observations, information, information · xy]
-    for k in np.argsort([i for i, _, _ in landmarks], kind="stable"):
-        ident, convex, seen = landmarks[k]
-        info = np.linalg.inv(covs[k])
-        for m in merged:
-            if m[1] != convex:
-                continue
-            cov = np.linalg.inv(m[3])
-            d = xy[k] - cov @ m[4]
-            if float(d @ np.linalg.solve(cov + covs[k], d)) < gate_chi2:
-                m[2] += seen
-                m[3] = m[3] + info
-                m[4] = m[4] + info @ xy[k]
-                break
-        else:
-            merged.append([ident, convex, seen, info, info @ xy[k]])
-    out = []
-    for ident, convex, seen, info, weighted in merged:
-        cov = np.linalg.inv(info)
-        x, y = cov @ weighted
-        out.append((int(ident), bool(convex), int(seen), float(x), float(y), cov))
-    return out
 
 
 def run(scans: Iterable[Scan], config: Config,

@@ -182,7 +182,7 @@ def test_a_corner_confirmed_twice_is_one_row_of_the_landmark_map():
     """A landmark the EKF let go of and confirmed anew is the same corner: one row, fused by
     information, the first id, the sightings summed; another kind at the same place, or the
     same kind half a metre away, stays apart."""
-    from dynslam_cli.pipeline import one_per_corner
+    from dynslam_cli.localization.cornerslam import one_per_corner
 
     cov = np.diag([0.02 ** 2, 0.02 ** 2])
     xy = np.array([[1.0, 2.0], [1.03, 2.0], [1.0, 2.0], [1.5, 2.0]])

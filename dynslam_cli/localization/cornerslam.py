@@ -247,3 +247,51 @@ class CornerSlam:
 
     def landmark_positions(self) -> np.ndarray:
         return self.ekf.x[3:].reshape(-1, 2)
+
+
+@dataclass(eq=False)
+class _Corner:
+    """A corner of the landmark map being built: its first id, kind, sightings, the sum of
+    its landmarks' information and information-weighted positions, and from these its
+    covariance and position."""
+
+    id: int
+    convex: bool
+    seen: int
+    info: np.ndarray
+    weighted: np.ndarray
+    cov: np.ndarray = field(init=False)
+    xy: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.cov = np.linalg.inv(self.info)
+        self.xy = self.cov @ self.weighted
+
+
+def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs: np.ndarray,
+                   gate_chi2: float) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
+    """The landmark map with one row per corner: a landmark the EKF let go of and confirmed
+    anew when the robot came back is the same corner twice. Landmarks (id, convex,
+    observations) of the same kind whose positions ``xy`` agree within their combined
+    covariance (``covs``, N×2×2; the association gate ``gate_chi2``, χ² 2 dof) are one:
+    the first id, the observations summed, the positions fused by their information.
+    In order of id; returns (id, convex, observations, x, y, covariance)."""
+    corners: list[_Corner] = []
+    for k in np.argsort([i for i, _, _ in landmarks], kind="stable"):
+        ident, convex, seen = landmarks[k]
+        info = np.linalg.inv(covs[k])
+        for n, c in enumerate(corners):
+            if c.convex != convex:
+                continue
+            d = xy[k] - c.xy
+            both = c.cov + covs[k]
+            # (d²/trace bounds the Mahalanobis distance from below: far corners skip solve)
+            if (float(d @ d) <= gate_chi2 * float(np.trace(both))
+                    and float(d @ np.linalg.solve(both, d)) < gate_chi2):
+                corners[n] = _Corner(c.id, convex, c.seen + seen,
+                                                    c.info + info, c.weighted + info @ xy[k])
+                break
+        else:
+            corners.append(_Corner(ident, convex, seen, info, info @ xy[k]))
+    return [(int(c.id), bool(c.convex), int(c.seen), float(c.xy[0]), float(c.xy[1]), c.cov)
+            for c in corners]

@@ -267,25 +267,24 @@ def _one_per_mover(tracks: list[tuple[np.ndarray, np.ndarray]], config: ChangeCo
     at most ``join_gap_s`` before it begins (or still seen) within ``track_gate_m`` plus
     ``walker_speed_m_s`` times the time between (where the other was at that moment, if
     it is still seen)."""
-    order = sorted(range(len(tracks)), key=lambda k: (tracks[k][0][0], k))
-    joined: list[list[int]] = []
-    for k in order:
+    groups: list[tuple[list[tuple[np.ndarray, np.ndarray]], tuple[np.ndarray, np.ndarray]]] = []
+    for k in sorted(range(len(tracks)), key=lambda k: (tracks[k][0][0], k)):
         t0, first = tracks[k][0][0], tracks[k][1][0, CX:CY + 1]
         best, best_d = None, math.inf
-        for group in joined:
-            t, b = _merged([tracks[j] for j in group])
+        for g, (_, (t, b)) in enumerate(groups):  # (each group's tracks merged: kept)
             gap = t0 - t[-1]
             if gap > config.join_gap_s:
                 continue
             at = min(np.searchsorted(t, t0, side="right") - 1, len(t) - 1)
             d = float(np.hypot(*(first - b[max(at, 0), CX:CY + 1])))
             if d <= config.track_gate_m + config.walker_speed_m_s * max(gap, 0.0) and d < best_d:
-                best, best_d = group, d
+                best, best_d = g, d
         if best is None:
-            joined.append([k])
+            groups.append(([tracks[k]], tracks[k]))
         else:
-            best.append(k)
-    return [_merged([tracks[j] for j in group]) for group in joined]
+            members = groups[best][0] + [tracks[k]]
+            groups[best] = (members, _merged(members))
+    return [merged for _, merged in groups]
 
 
 def _merged(tracks: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
