@@ -275,3 +275,22 @@ def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
     pose, _ = fused
     assert pose.x == pytest.approx(0.1)  # along: the odometry's
     assert pose.y == pytest.approx(0.02, abs=2e-4) and pose.theta == pytest.approx(0.01, abs=2e-4)
+
+
+def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
+    """A scan's pairs count as at most ``effective_pairs`` independent ones (they err
+    together), never as more than there are: a match of a tenth of the points has about a
+    tenth of the information, so the odometry weighs more where a scan sees little."""
+    from dynslam_cli.localization._match import PointIndex
+    from dynslam_cli.localization.scanmatch import icp
+
+    cfg = MatchConfig()
+    ref = PointIndex(robot_points(Pose2D()))
+    normals = ref.normals(cfg.normal_neighbours)
+    pts = robot_points(Pose2D(0.05, 0.02, 0.01))
+    many = icp(ref, normals, pts, Pose2D(), cfg)
+    few = icp(ref, normals, pts[::12], Pose2D(), cfg)
+    assert len(pts) >= cfg.effective_pairs > len(pts[::12])
+    assert many.share > 0.9 and few.share > 0.9
+    ratio = np.trace(few.information) / np.trace(many.information)
+    assert ratio < 2 * len(pts[::12]) / cfg.effective_pairs

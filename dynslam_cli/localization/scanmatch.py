@@ -108,7 +108,7 @@ class MatchConfig:
     effective_pairs: float = 100.0
     """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
     against shares its key scans' errors): for the match's information they count as this
-    many independent pairs."""
+    many independent pairs, or as themselves where there are fewer."""
     correlative: CorrelativeConfig = field(default_factory=CorrelativeConfig)
     """The correlative search (method = "correlative")."""
 
@@ -149,8 +149,9 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
     RMS ∞ and no information.
 
     The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M) counted as
-    ``cfg.effective_pairs`` independent pairs: a direction no tangent line constrains (along a
-    corridor's walls) has none."""
+    ``cfg.effective_pairs`` independent pairs (fewer pairs: as themselves, never as more
+    than there are): a direction no tangent line constrains (along a corridor's walls) has
+    none."""
     prior = [0.0, 0.0, 0.0]
     if prior_sigma is not None:  # information of the guess, in residual units
         ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
@@ -163,7 +164,7 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
         return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
     used = max(share * len(pts), 1.0)
     return IcpResult(Pose2D(x, y, th), share, rms,
-                     h * (cfg.effective_pairs / used) / RESIDUAL_SIGMA_M ** 2)
+                     h * (min(cfg.effective_pairs, used) / used) / RESIDUAL_SIGMA_M ** 2)
 
 
 def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> np.ndarray:
