@@ -7,8 +7,8 @@ relocation (paper Table 4, event by event) and scores with dynslam_cli.evaluate.
 table and writes bench/accuracy.json.
 
     python bench/accuracy.py [--duration 600] [--rate 10] [--worlds corridors,arena]
-                             [--modes S/D,ordinary,odometry] [--method icp|correlative]
-                             [--config FILE]
+                             [--modes S/D,ordinary,odometry] [--odometry true,drift]
+                             [--method icp|correlative] [--config FILE]
 
 ``--config`` is the TOML file every run starts from (default: the built-in defaults);
 ``--method`` sets its local scan matcher (``[match] method``).
@@ -102,13 +102,15 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=10.0)
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
     ap.add_argument("--modes", default=",".join(MODES))
+    ap.add_argument("--odometry", default="true,drift",
+                    help="the simulator's odometry: true (exact), drift (its default noise)")
     add_config_args(ap, "accuracy.json")
     args = ap.parse_args()
     base = base_config(args)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         for world in args.worlds.split(","):
-            for noise in (0.0, 1.0):
+            for noise in [{"true": 0.0, "drift": 1.0}[o] for o in args.odometry.split(",")]:
                 for mode in args.modes.split(","):
                     rows.append(one(world, noise, mode, args.duration, args.rate, Path(d),
                                     base))

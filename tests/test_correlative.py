@@ -270,7 +270,7 @@ def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
 
     information = np.diag([0.0, 1e6, 1e6])  # a corridor along x: nothing along it
     fused = fused_pose(Pose2D(0.3, 0.02, 0.01), information, Pose2D(0.1, 0.0, 0.0),
-                       (0.01, 0.01, 0.01))
+                       (0.01, 0.01, 0.01), glitch=1e-3)
     assert fused is not None
     pose, _ = fused
     assert pose.x == pytest.approx(0.1)  # along: the odometry's
@@ -294,3 +294,17 @@ def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
     assert many.share > 0.9 and few.share > 0.9
     ratio = np.trace(few.information) / np.trace(many.information)
     assert ratio < 2 * len(pts[::12]) / cfg.effective_pairs
+
+
+def test_how_far_a_match_may_stray_from_the_odometry_follows_the_stated_slip_rate():
+    """The odometry's prior is a Gaussian with a floor (its slips): a match 5σ off it
+    (χ² 25) is the odometry slipping where slips are one in a thousand, and fused with it
+    where the odometry is stated never to slip (a simulator's)."""
+    from dynslam_cli.localization.scanmatch import fused_pose
+
+    information = np.diag([1e6, 1e6, 1e6])  # a match sure to a millimetre
+    odometry, match = Pose2D(0.1, 0.0, 0.0), Pose2D(0.15, 0.0, 0.0)
+    sigma = (0.01, 0.01, 0.01)  # 5 cm off: 5σ
+    assert fused_pose(match, information, odometry, sigma, glitch=1e-3) is None
+    kept = fused_pose(match, information, odometry, sigma, glitch=1e-12)
+    assert kept is not None and 0.1 < kept[0].x < 0.15

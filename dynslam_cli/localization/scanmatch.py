@@ -178,16 +178,20 @@ def pose_difference(a: Pose2D, b: Pose2D) -> np.ndarray:
 
 
 def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
-               prior_sigma: Sequence[float]) -> tuple[Pose2D, np.ndarray] | None:
+               prior_sigma: Sequence[float], glitch: float
+               ) -> tuple[Pose2D, np.ndarray] | None:
     """The match fused with the odometry's pose by their information, x_m + Σ Ω_o (x_o −
-    x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻², and Σ; None where the two
-    disagree beyond REFINE_CHI2 (χ², 3 dof) under their combined covariance
-    (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m (no inverse of a match that leaves a direction
-    free). Where the scan constrains nothing (along a corridor) the odometry's value
-    remains; where it constrains everything, the match's."""
+    x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻², and Σ. Where the scan
+    constrains nothing (along a corridor) the odometry's value remains; where it
+    constrains everything, the match's. None where the odometry slipped: its prior is a
+    Gaussian with a floor of ``glitch`` times its peak (:func:`odometry_log_prior`), whose
+    posterior peaks at the match alone where the two disagree by more than
+    χ² = 2 ln(1/glitch) under their combined covariance (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m
+    (no inverse of a match that leaves a direction free)."""
     cov = fused_covariance(information, prior_sigma)
     d = pose_difference(odometry, match)
-    if float(d @ (information - information @ cov @ information) @ d) > REFINE_CHI2:
+    if float(d @ (information - information @ cov @ information) @ d) > 2.0 * math.log(
+            1.0 / glitch):
         return None
     step = cov @ (d / np.maximum(np.asarray(prior_sigma, dtype=float), 1e-6) ** 2)
     return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2]), cov
@@ -369,7 +373,8 @@ class ScanMatcher:
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return post.pose, source, post.cov
-        fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr))
+        fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
+                            cfg.correlative.odometry_glitch)
                  if source == "matched" else None)
         if fused is not None:
             return fused[0], source, fused[1]
