@@ -285,11 +285,10 @@ def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
     from dynslam_cli.localization.scanmatch import icp
 
     cfg = MatchConfig()
-    ref = PointIndex(robot_points(Pose2D()))
-    normals = ref.normals(cfg.normal_neighbours)
+    ref = PointIndex(robot_points(Pose2D()), neighbours=cfg.normal_neighbours)
     pts = robot_points(Pose2D(0.05, 0.02, 0.01))
-    many = icp(ref, normals, pts, Pose2D(), cfg)
-    few = icp(ref, normals, pts[::12], Pose2D(), cfg)
+    many = icp(ref, pts, Pose2D(), cfg)
+    few = icp(ref, pts[::12], Pose2D(), cfg)
     assert len(pts) >= cfg.effective_pairs > len(pts[::12])
     assert many.share > 0.9 and few.share > 0.9
     ratio = np.trace(few.information) / np.trace(many.information)

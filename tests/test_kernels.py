@@ -34,7 +34,7 @@ def test_nearest_point_matches_brute_force(bound):
 def test_normals_are_the_least_spread_direction_of_the_k_nearest():
     points = RNG.uniform(0, 4, (500, 2))
     k = 6
-    got = PointIndex(points).normals(k)
+    got = PointIndex(points, neighbours=k).normals()
     d = np.hypot(points[None, :, 0] - points[:, None, 0], points[None, :, 1] - points[:, None, 1])
     for i in range(len(points)):
         nb = points[np.argsort(d[i], kind="stable")[:k]]

@@ -260,7 +260,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 
     pts = corridor_points()
     ref = PointIndex(pts)
-    match = icp(ref, ref.normals(6), pts, Pose2D(0.3, 0.05, 0.01), MatchConfig(),
+    match = icp(ref, pts, Pose2D(0.3, 0.05, 0.01), MatchConfig(),
                 (0.2, 0.2, 0.1))
     info = match.information
     assert info[0, 0] < 0.01 * info[1, 1]  # along: next to nothing; across: a lot
@@ -271,7 +271,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
     assert abs(match.pose.y) < 0.01  # pinned across
 
     room = PointIndex(robot_points(Pose2D()))  # a room pins every direction
-    m = icp(room, room.normals(6), robot_points(Pose2D(0.1, 0.0, 0.0)), Pose2D(),
+    m = icp(room, robot_points(Pose2D(0.1, 0.0, 0.0)), Pose2D(),
             MatchConfig(), (0.2, 0.2, 0.1))
     assert np.linalg.eigvalsh(m.information[:2, :2]).min() > 1e3
 
@@ -346,7 +346,7 @@ def test_a_match_keeps_none_of_the_odometrys_error():
     pts = robot_points(true)
     for dx, dy, dth in ((0.3, 0.0, 4.0), (-0.2, 0.25, -4.0), (0.0, -0.3, 2.5)):
         guess = Pose2D(true.x + dx, true.y + dy, true.theta + math.radians(dth))
-        m = icp(ref, ref.normals(6), pts, guess, MatchConfig(), (0.3, 0.3, math.radians(5)))
+        m = icp(ref, pts, guess, MatchConfig(), (0.3, 0.3, math.radians(5)))
         assert m.share > 0.9
         assert math.hypot(m.pose.x - true.x, m.pose.y - true.y) < 0.005
         assert abs(math.degrees(m.pose.theta - true.theta)) < 0.05

@@ -17,11 +17,16 @@ ctypedef unsigned char u8
 
 
 MAX_BUCKETS_PER_SIDE = 1024
+cdef enum:
+    MAX_NEIGHBOURS = 64  # a normal's points, at most
 
 
 cdef class PointIndex:
     """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
-    bound (fastest when the bound is about the cell size: 3×3 buckets are searched)."""
+    bound (fastest when the bound is about the cell size: 3×3 buckets are searched); and
+    each point's normal from its ``neighbours`` nearest (at most 64), computed when first
+    asked for (ICP asks for those of the points it pairs with: a few hundred of a local
+    map's thousands) and kept."""
 
     cdef readonly object points
     cdef const double[:, ::1] pts
@@ -30,12 +35,20 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] start
     cdef Py_ssize_t[::1] order
     cdef const double[:, ::1] by_bucket  # the points in bucket order: read in sequence
+    cdef Py_ssize_t neighbours
+    cdef double[:, ::1] nrm  # each point's normal, where ...
+    cdef u8[::1] has_nrm  # ... computed
 
-    def __init__(self, points, double cell=0.25):
+    def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
         cdef Py_ssize_t n = self.pts.shape[0], i, b
+        if not 1 <= neighbours <= MAX_NEIGHBOURS:
+            raise ValueError(f"neighbours must be 1-{MAX_NEIGHBOURS}, not {neighbours}")
+        self.neighbours = min(neighbours, n)
+        self.nrm = np.zeros((n, 2))
+        self.has_nrm = np.zeros(n, dtype=np.uint8)
         if n == 0:
             self.x0 = self.y0 = 0.0
             self.nx = self.ny = 1
@@ -116,36 +129,40 @@ cdef class PointIndex:
                 return found  # the whole grid is searched
             r += 1
 
-    def normals(self, Py_ssize_t k):
-        """Unit normal of every point: the direction of least spread of its k nearest
-        points (itself included)."""
-        cdef Py_ssize_t n = self.pts.shape[0], i, m, kk = min(k, n)
-        out = np.zeros((n, 2))
-        cdef double[:, ::1] o = out
-        idx = np.empty(max(kk, 1), dtype=np.intp)
-        dist = np.empty(max(kk, 1))
-        cdef Py_ssize_t[::1] iv = idx
-        cdef double[::1] dv = dist
+    def normals(self):
+        """Unit normal of every point (N×2)."""
+        cdef Py_ssize_t i
+        for i in range(self.pts.shape[0]):
+            self._normal(i)
+        return np.asarray(self.nrm).copy()
+
+    cdef void _normal(self, Py_ssize_t i) noexcept nogil:
+        """Point i's unit normal into nrm[i], unless it is there: the direction of least
+        spread of its ``neighbours`` nearest points (itself included)."""
+        if self.has_nrm[i]:
+            return
+        cdef Py_ssize_t iv[MAX_NEIGHBOURS]
+        cdef double dv[MAX_NEIGHBOURS]
+        cdef Py_ssize_t m, kk = self.neighbours
         cdef double mx, my, sxx, syy, sxy, dx, dy, a
-        for i in range(n):
-            self._search(self.pts[i, 0], self.pts[i, 1], kk, INFINITY, &iv[0], &dv[0])
-            mx = my = 0.0
-            for m in range(kk):
-                mx += self.pts[iv[m], 0]
-                my += self.pts[iv[m], 1]
-            mx /= kk
-            my /= kk
-            sxx = syy = sxy = 0.0
-            for m in range(kk):
-                dx = self.pts[iv[m], 0] - mx
-                dy = self.pts[iv[m], 1] - my
-                sxx += dx * dx
-                syy += dy * dy
-                sxy += dx * dy
-            a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
-            o[i, 0] = cos(a)
-            o[i, 1] = sin(a)
-        return out
+        self._search(self.pts[i, 0], self.pts[i, 1], kk, INFINITY, iv, dv)
+        mx = my = 0.0
+        for m in range(kk):
+            mx += self.pts[iv[m], 0]
+            my += self.pts[iv[m], 1]
+        mx /= kk
+        my /= kk
+        sxx = syy = sxy = 0.0
+        for m in range(kk):
+            dx = self.pts[iv[m], 0] - mx
+            dy = self.pts[iv[m], 1] - my
+            sxx += dx * dx
+            syy += dy * dy
+            sxy += dx * dy
+        a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
+        self.nrm[i, 0] = cos(a)
+        self.nrm[i, 1] = sin(a)
+        self.has_nrm[i] = 1
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""
@@ -186,18 +203,19 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
     return 1
 
 
-def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
-        double gx, double gy, double gth, int iterations, double gate_max, double gate_min,
-        double wx, double wy, double wth, double sigma, double step_m, double step_rad):
+def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double gth,
+        int iterations, double gate_max, double gate_min, double wx, double wy, double wth,
+        double sigma, double step_m, double step_rad):
     """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
     (a step of under step_m in |x| + |y| and step_rad in θ) at a wider gate, it goes on at
     the narrowest until converged there (the answer is then the narrow gate's, outliers
     left out). Returns (x, y, θ, share, rms, ok, h): h is the Huber-weighted Σ J Jᵀ of the
-    pairs of the last iteration (3×3, the prior left out)."""
+    pairs of the last iteration (3×3, the prior left out). The reference points' normals
+    are the index's."""
     cdef double out[11]
     cdef bint ok
     with nogil:
-        ok = _icp(index, normals, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
+        ok = _icp(index, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
                   wth, sigma, step_m, step_rad, out)
     h = np.zeros((3, 3))
     if not ok:
@@ -208,10 +226,10 @@ def icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts
     return out[0], out[1], out[2], out[3], out[4], True, h
 
 
-cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, ::1] pts,
-               double gx, double gy, double gth, int iterations, double gate_max,
-               double gate_min, double wx, double wy, double wth, double sigma,
-               double step_m, double step_rad, double out[11]) noexcept nogil:
+cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
+               double gth, int iterations, double gate_max, double gate_min, double wx,
+               double wy, double wth, double sigma, double step_m, double step_rad,
+               double out[11]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
     cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
     cdef double share = 0.0, rms = INFINITY, sq
@@ -239,8 +257,9 @@ cdef bint _icp(PointIndex index, const double[:, ::1] normals, const double[:, :
             if j < 0:
                 continue
             used += 1
-            nx = normals[j, 0]
-            ny = normals[j, 1]
+            index._normal(j)
+            nx = index.nrm[j, 0]
+            ny = index.nrm[j, 1]
             r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
             dpx = -s * pts[i, 0] - c * pts[i, 1]
             dpy = c * pts[i, 0] - s * pts[i, 1]

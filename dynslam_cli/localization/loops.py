@@ -25,7 +25,6 @@ around the new node are matched against those around the old one:
 from __future__ import annotations
 
 import bisect
-import functools
 import math
 from collections import OrderedDict, deque
 from dataclasses import dataclass
@@ -152,17 +151,12 @@ FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
 class LikelihoodField:
     """exp(−d²/2σ²) of the distance d from each cell to the nearest occupied cell of the
     submap, on a fine grid, and its max-pooled copy for the coarse pass; the submap's points
-    indexed, and their normals for ICP (computed when first asked: most matches stop
-    before ICP)."""
+    indexed, with their normals for ICP."""
 
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
     index: PointIndex
-
-    @functools.cached_property
-    def normals(self) -> np.ndarray:
-        return self.index.normals(NORMAL_NEIGHBOURS)
 
 
 def likelihood_field(points: np.ndarray) -> LikelihoodField:
@@ -174,7 +168,7 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     coarse = np.zeros((shape[1], shape[0]))
     _loops.splat_max(fine, rows, cols, FINE_KERNEL)
     _loops.splat_max(coarse, rows, cols, COARSE_KERNEL)
-    index = PointIndex(points)
+    index = PointIndex(points, neighbours=NORMAL_NEIGHBOURS)
     return LikelihoodField(fine, coarse, lo, index)
 
 
@@ -191,7 +185,7 @@ def constraint_ratio(points: np.ndarray) -> float:
     """How well a set of points pins down a position, weakest direction over strongest
     (eigenvalues of the sum of n nᵀ over the points' normals): about 0 for the two walls of a
     corridor, which say nothing about the position along it."""
-    n = PointIndex(points).normals(NORMAL_NEIGHBOURS)
+    n = PointIndex(points, neighbours=NORMAL_NEIGHBOURS).normals()
     ev = np.linalg.eigvalsh(n.T @ n)
     return float(ev[0] / max(ev[1], 1e-12))
 
@@ -443,7 +437,7 @@ class LoopCloser:
         if (match.score < cfg.min_score
                 or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
             return False
-        refined = icp(field.index, field.normals, query, match.pose, self.match,
+        refined = icp(field.index, query, match.pose, self.match,
                       np.sqrt(np.diag(match.cov)))
         if refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m:
             return False

@@ -133,10 +133,10 @@ class IcpResult(NamedTuple):
     information: np.ndarray
 
 
-def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D,
-        cfg: MatchConfig, prior_sigma: Sequence[float] | None = None) -> IcpResult:
+def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: MatchConfig,
+        prior_sigma: Sequence[float] | None = None) -> IcpResult:
     """Point-to-line ICP: the pose of ``pts``' frame in the frame of the reference points
-    (indexed by ``ref``, with their normals), starting at ``guess``.
+    (indexed by ``ref``, which gives their normals), starting at ``guess``.
 
     Each of ``cfg.iterations`` Gauss-Newton steps pairs every point with the nearest
     reference point within a gate that shrinks from ``max_correspondence_m`` to
@@ -157,7 +157,7 @@ def icp(ref: PointIndex, ref_normals: np.ndarray, pts: np.ndarray, guess: Pose2D
         ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
         prior = [r * r for r in ratios]
     x, y, th, share, rms, ok, h = _match.icp(
-        ref, ref_normals, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
+        ref, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
         RESIDUAL_SIGMA_M, *CONVERGED_STEP)
     if not ok:
@@ -213,7 +213,7 @@ class LocalMap:
     def __init__(self, cfg: MatchConfig) -> None:
         self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
         self._cfg = cfg
-        self.reference: tuple[PointIndex, np.ndarray] | None = None
+        self.reference: PointIndex | None = None
         self._field: LogField | None = None
         self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
@@ -231,8 +231,8 @@ class LocalMap:
         if len(pts) < 20:
             self.reference = None
             return
-        index = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)])
-        self.reference = (index, index.normals(self._cfg.normal_neighbours))
+        self.reference = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)],
+                                    neighbours=self._cfg.normal_neighbours)
 
     def field(self) -> LogField:
         """The correlative search's lookup table of the local map. Made anew from the local
@@ -318,15 +318,14 @@ class ScanMatcher:
         st = max(st * cfg.prior_scale, cfg.prior_floor_m)
         return st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg))
 
-    def _match(self, scan: Scan, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
+    def _match(self, scan: Scan, pts: np.ndarray, reference: PointIndex,
                guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
         """The matched pose (matcher frame) of the scan's points, its source and its
         covariance."""
         if self.cfg.method == "correlative" and scan.has_odometry:
             return self._correlative(pts, reference, guess, wheel, scan.odom)
         sigma = self._prior_sigma(scan, wheel)
-        ref, normals = reference
-        match = icp(ref, normals, pts, guess, self.cfg, sigma)
+        match = icp(reference, pts, guess, self.cfg, sigma)
         if self._good(match, pts, guess, sigma):
             return match.pose, "matched", fused_covariance(match.information, sigma)
         if scan.has_odometry:  # odometry glitches (a doubled turn)
@@ -336,7 +335,7 @@ class ScanMatcher:
                         fused_covariance(recovered.information, sigma))
         return guess, "fallback", None
 
-    def _correlative(self, pts: np.ndarray, reference: tuple[PointIndex, np.ndarray],
+    def _correlative(self, pts: np.ndarray, reference: PointIndex,
                      guess: Pose2D, wheel: Pose2D, odom: Pose2D
                      ) -> tuple[Pose2D, str, np.ndarray | None]:
         """The correlative search's best pose around the odometry's guess (prior: the
@@ -367,8 +366,7 @@ class ScanMatcher:
             self._agrees = False
             return guess, "fallback", None
         self._agrees = agrees
-        ref, normals = reference
-        refined = icp(ref, normals, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
+        refined = icp(reference, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
@@ -413,18 +411,17 @@ class ScanMatcher:
         return (abs(math.remainder(pose.theta - guess.theta, math.tau))
                 <= abs(wheel.theta) + math.radians(max(RECOVERY_TURNS_DEG)))
 
-    def _recover(self, reference: tuple[PointIndex, np.ndarray], pts: np.ndarray,
+    def _recover(self, reference: PointIndex, pts: np.ndarray,
                  guess: Pose2D, wheel: Pose2D, sigma: Sequence[float]) -> IcpResult | None:
         """Match again from the constant-velocity guess and from the odometry's guess turned
         by each of RECOVERY_TURNS_DEG, each with the same prior around itself; the best good
         match with a plausible turn wins (None: none)."""
-        ref, normals = reference
         guesses = [compose(self._pose, self._last_increment)]
         guesses += [Pose2D(guess.x, guess.y, guess.theta + math.radians(d))
                     for d in RECOVERY_TURNS_DEG]
         best = None
         for g in guesses:
-            match = icp(ref, normals, pts, g, self.cfg, sigma)
+            match = icp(reference, pts, g, self.cfg, sigma)
             if (self._good(match, pts, g, sigma) and self._plausible_turn(match.pose, guess, wheel)
                     and (best is None or (match.share, -match.rms) > (best.share, -best.rms))):
                 best = match
