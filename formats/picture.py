@@ -1,12 +1,16 @@
 """A picture of S ∪ D: static map in grey levels (dark = occupied, grey = unknown), dynamic
 cells in red, the trajectory in blue, landmarks as small squares (static green, dynamic
-orange), change events as numbered circles (appeared magenta, vacated cyan, moving
-violet; their rows in changes.csv). ``map.png`` shows the part with walls, path or
-upscaled by whole pixels per cell when small, with metre ticks in the map frame, a scale bar
-and a legend; the snapshots are the plain grid, one pixel per cell."""
+orange), change events numbered as in changes.csv: objects (appeared magenta, vacated
+cyan) as outlines of their size, movers (violet) as thin paths. Numbers are written only
+where they overlap no other number, and at most MAX_EVENTS_DRAWN events are drawn (the
+largest; the frame says how many more changes.csv holds). ``map.png`` shows the part
+with walls, path, landmarks or events, upscaled by whole pixels per cell when small, with
+metre ticks in the map frame, a scale bar and a legend; the snapshots and the frames of
+``evolution.gif`` have the same frame and their time from the log's start."""
 
 from __future__ import annotations
 
+import io
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,6 +36,7 @@ MAX_PICTURE_PX = 4096  # and shrunk (whole cells per pixel) to at most this size
 WALL_QUANTILE = 0.005
 MARGIN_M = 1.0  # map.png shows the walls, path and landmarks with this much around them
 NICE_STEPS_M = (0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)
+MAX_EVENTS_DRAWN = 60
 
 
 def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
@@ -44,7 +49,7 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
     (the darkest of them, red if any is dynamic: walls and movers stay visible); the path
     and landmarks drawn at that scale. Drawn on a new image, or ``into`` (image, left, top)
     an existing one at that place (a frame: no second copy of a large picture); the
-    ``changes`` drawn numbered."""
+    ``changes`` drawn numbered (:func:`draw_changes`), inside the picture."""
     rows, cols = static.shape
     c0, r0, c1, r1 = window = window or (0, 0, cols, rows)
     k = shrink
@@ -80,14 +85,63 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
     for lm in landmarks:
         u, v = pixel(lm.x, lm.y)
         draw.rectangle((u - half, v - half, u + half, v + half), outline=LANDMARK_RGB[lm.cls])
-    font = ImageFont.load_default()
-    for e in changes:
-        u, v = pixel(e.x, e.y)
-        r = max(3.0, math.sqrt(e.size_m2) / 2 / res * px_per_cell + 2)
-        draw.ellipse((u - r, v - r, u + r, v + r), outline=CHANGE_RGB[e.kind], width=2)
-        draw.text((u + r + 1, v - r), str(e.id), fill=CHANGE_RGB[e.kind], font=font,
-                  anchor="lb")
+    if changes:  # drawn on the picture alone: nothing reaches into the frame around it
+        w, h = picture_size(window, scale, k)
+        box = (left, top, left + w, top + h)
+        picture = image.crop(box)
+        draw_changes(ImageDraw.Draw(picture), changes,
+                     lambda x, y: (pixel(x, y)[0] - left, pixel(x, y)[1] - top),
+                     px_per_cell / res, picture.size)
+        image.paste(picture, box[:2])
     return image
+
+
+def draw_changes(draw: ImageDraw.ImageDraw, changes: Sequence[ChangeEvent],
+                 pixel: Any, px_per_m: float, size: tuple[int, int]) -> int:
+    """The ``changes`` on a picture of ``size`` pixels (``pixel`` maps x, y in metres to
+    it): objects as circles as wide as they are, movers as their paths, the MAX_EVENTS_DRAWN
+    largest (an object's width, a mover's way) in order of their number; each numbered
+    beside it where the number fits in the picture and overlaps no number already written
+    (right, left, above or below), else unnumbered. Returns how many were left out."""
+    drawn = sorted(changes, key=lambda e: (-_extent_m(e), e.id))[:MAX_EVENTS_DRAWN]
+    font = ImageFont.load_default()
+    written: list[tuple[float, float, float, float]] = []
+    for e in sorted(drawn, key=lambda e: e.id):
+        colour = CHANGE_RGB[e.kind]
+        u, v = pixel(e.x, e.y)
+        r = max(3.0, math.sqrt(e.size_m2) / 2 * px_per_m + 2)
+        if e.path:
+            points = [pixel(x, y) for x, y in e.path]
+            if len(points) > 1:
+                draw.line(points, fill=colour, width=1)
+            u, v = points[-1]  # numbered where the mover was last seen
+            r = 3.0
+            draw.ellipse((u - 2, v - 2, u + 2, v + 2), fill=colour)
+        else:
+            draw.ellipse((u - r, v - r, u + r, v + r), outline=colour, width=2)
+        text = str(e.id)
+        for at, anchor in (((u + r + 2, v), "lm"), ((u - r - 2, v), "rm"),
+                           ((u, v - r - 2), "mb"), ((u, v + r + 2), "mt")):
+            b = draw.textbbox(at, text, font=font, anchor=anchor, stroke_width=1)
+            inside = b[0] >= 0 and b[1] >= 0 and b[2] <= size[0] and b[3] <= size[1]
+            if inside and not any(_overlap(b, w) for w in written):
+                draw.text(at, text, fill=colour, font=font, anchor=anchor, stroke_width=1,
+                          stroke_fill=PAPER_RGB)
+                written.append(b)
+                break
+    return len(changes) - len(drawn)
+
+
+def _extent_m(e: ChangeEvent) -> float:
+    """How much of the map an event covers (m): an object's width, a mover's way."""
+    if e.path:
+        p = np.asarray(e.path)
+        return float(np.hypot(*np.diff(p, axis=0).T).sum())
+    return math.sqrt(e.size_m2)
+
+
+def _overlap(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
 def picture_size(window: tuple[int, int, int, int], scale: int, shrink: int
@@ -107,11 +161,12 @@ def _block(a: np.ndarray, k: int, fill: Any, reduce: Any) -> np.ndarray:
 
 
 def content_window(static: OccupancyMap, trajectory: np.ndarray, landmarks: Sequence[Landmark],
-                   occupied_thresh: float, margin_m: float = MARGIN_M
-                   ) -> tuple[int, int, int, int]:
-    """Cells (col0, row0, col1, row1) around the walls, the path and the landmarks: free
-    space cleared only by long no-return beams far beyond the walls is left out, and so are
-    the farthest ``WALL_QUANTILE`` of occupied cells on each side (stray far readings)."""
+                   occupied_thresh: float, margin_m: float = MARGIN_M,
+                   changes: Sequence[ChangeEvent] = ()) -> tuple[int, int, int, int]:
+    """Cells (col0, row0, col1, row1) around the walls, the path, the landmarks and the
+    change events: free space cleared only by long no-return beams far beyond the walls is
+    left out, and so are the farthest ``WALL_QUANTILE`` of occupied cells on each side
+    (stray far readings)."""
     rows, cols = static.shape
     found = [(r0 + r, c) for r0, band in static.bands()
              for r, c in [np.nonzero(band > occupied_thresh)]]
@@ -121,16 +176,24 @@ def content_window(static: OccupancyMap, trajectory: np.ndarray, landmarks: Sequ
         occ_r = np.quantile(occ_r, [WALL_QUANTILE, 1 - WALL_QUANTILE])
         occ_c = np.quantile(occ_c, [WALL_QUANTILE, 1 - WALL_QUANTILE])
     res = static.resolution
+    places = np.array([(lm.x, lm.y) for lm in landmarks]
+                      + [p for e in changes for p in (e.path or _corners(e))]).reshape(-1, 2)
     xs = [occ_c.astype(float), trajectory[:, 1:2].ravel() / res - static.origin_x / res,
-          np.array([(lm.x - static.origin_x) / res for lm in landmarks])]
+          (places[:, 0] - static.origin_x) / res]
     ys = [occ_r.astype(float), trajectory[:, 2:3].ravel() / res - static.origin_y / res,
-          np.array([(lm.y - static.origin_y) / res for lm in landmarks])]
+          (places[:, 1] - static.origin_y) / res]
     x, y = np.concatenate(xs), np.concatenate(ys)
     if not len(x):
         return 0, 0, cols, rows
     m = margin_m / res
     return (max(0, int(x.min() - m)), max(0, int(y.min() - m)),
             min(cols, math.ceil(x.max() + m) + 1), min(rows, math.ceil(y.max() + m) + 1))
+
+
+def _corners(e: ChangeEvent) -> list[tuple[float, float]]:
+    """The corners of the square an object's circle is drawn in (m)."""
+    r = math.sqrt(e.size_m2) / 2
+    return [(e.x - r, e.y - r), (e.x + r, e.y + r)]
 
 
 def _nice_step(span_m: float, wanted: int = 6) -> float:
@@ -149,17 +212,20 @@ LEGEND = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
           *((rgb, f"{kind} (changes.csv)") for kind, rgb in CHANGE_RGB.items())]
 
 
-def frame(static: OccupancyMap, window: tuple[int, int, int, int], size: tuple[int, int],
-          scale: float) -> tuple[Image.Image, int, int]:
-    """The frame of a picture of ``size`` pixels showing ``window`` at ``scale`` pixels per
-    cell: metre ticks (map frame) on the left and bottom, a scale bar and a legend below.
-    Returns the canvas and where the picture goes in it (left, top)."""
+def frame(grid: OccupancyMap | tuple[float, float, float], window: tuple[int, int, int, int],
+          size: tuple[int, int], scale: float, title: str = "", note: str = ""
+          ) -> tuple[Image.Image, int, int]:
+    """The frame of a picture of ``size`` pixels showing ``window`` (cells of ``grid``, or
+    of a grid given as its origin x, y and resolution, m) at ``scale`` pixels per cell:
+    ``title`` above, metre ticks (map frame) on the left and bottom, a scale bar, a legend
+    and ``note`` below. Returns the canvas and where the picture goes in it (left, top)."""
     font = ImageFont.load_default()
-    res = static.resolution
+    ox, oy, res = (grid if isinstance(grid, tuple)
+                   else (grid.origin_x, grid.origin_y, grid.resolution))
     c0, r0, c1, r1 = window
-    left, top, right = 56, 10, 16
+    left, top, right = 56, 26 if title else 10, 16
     w, h = size
-    width = left + w + right
+    width = max(left + w + right, left + int(font.getlength(note)) + right)
     legend, u, y = [], left, top + h + 46  # the legend's entries, wrapped to the width
     for colour, label in LEGEND:
         length = font.getlength(label)
@@ -167,12 +233,16 @@ def frame(static: OccupancyMap, window: tuple[int, int, int, int], size: tuple[i
             u, y = left, y + 16
         legend.append((u, y, colour, label))
         u += int(14 + length + 14)
-    canvas = Image.new("RGB", (width, y + 18), PAPER_RGB)
+    canvas = Image.new("RGB", (width, y + (34 if note else 18)), PAPER_RGB)
     draw = ImageDraw.Draw(canvas)
+    if title:
+        draw.text((left, top - 8), title, fill=INK_RGB, font=font, anchor="ls")
+    if note:
+        draw.text((left, y + 21), note, fill=INK_RGB, font=font, anchor="lm")
     draw.rectangle((left - 1, top - 1, left + w, top + h), outline=INK_RGB)
     px_per_m = scale / res
-    x0, x1 = static.origin_x + c0 * res, static.origin_x + c1 * res
-    y0, y1 = static.origin_y + r0 * res, static.origin_y + r1 * res
+    x0, x1 = ox + c0 * res, ox + c1 * res
+    y0, y1 = oy + r0 * res, oy + r1 * res
     step = _nice_step(min(x1 - x0, y1 - y0), wanted=4)
     while step * px_per_m < 44 and step < NICE_STEPS_M[-1]:  # labels must not overlap
         step = NICE_STEPS_M[NICE_STEPS_M.index(step) + 1]
@@ -204,14 +274,22 @@ def picture_scale(window: tuple[int, int, int, int]) -> tuple[int, int]:
     return max(1, min(MAX_UPSCALE, MIN_PICTURE_PX // size)), -(-size // MAX_PICTURE_PX)
 
 
+def left_out_note(events: int) -> str:
+    """What the picture says of the events it leaves out (MAX_EVENTS_DRAWN at most)."""
+    more = events - MAX_EVENTS_DRAWN
+    return (f"the {MAX_EVENTS_DRAWN} largest of {events} events drawn: {more} more in "
+            f"changes.csv" if more > 0 else "")
+
+
 def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
                 landmarks: Sequence[Landmark], occupied_thresh: float,
                 changes: Sequence[ChangeEvent] = ()) -> tuple[Image.Image, float]:
     """map.png: the part of S ∪ D with something in it, upscaled when small (shrunk when
     very large), framed; and its pixels per cell."""
-    window = content_window(static, trajectory, landmarks, occupied_thresh)
+    window = content_window(static, trajectory, landmarks, occupied_thresh, changes=changes)
     scale, shrink = picture_scale(window)
-    framed = frame(static, window, picture_size(window, scale, shrink), scale / shrink)
+    framed = frame(static, window, picture_size(window, scale, shrink), scale / shrink,
+                   note=left_out_note(len(changes)))
     render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
            into=framed, changes=changes)
     return framed[0], scale / shrink
@@ -228,21 +306,26 @@ def write_picture(path: Path, static: OccupancyMap, dynamic: OccupancyMap,
 
 
 class SnapshotWriter:
-    """The S ∪ D picture every so many seconds of log time (``snapshots/t000123.4.png``), and
-    at the end an animated GIF of them all on one canvas (``snapshots/evolution.gif``), like
-    the rows of the paper's Figs. 2 and 4."""
+    """The S ∪ D picture every so many seconds of log time, framed like map.png and titled
+    with its time from the log's start (``snapshots/t000123.4s.png``: 123.4 s in), and at
+    the end an animated GIF of them all on one canvas (``snapshots/evolution.gif``), each
+    frame framed and titled the same way, like the rows of the paper's Figs. 2 and 4."""
+
+    GIF_PX = 800  # the GIF's pictures are shrunk to at most this size
 
     def __init__(self, folder: Path, every_s: float, config: Any) -> None:
         self.folder = folder
         self.every = every_s
         self.threshold = config.map.occupied_threshold
+        self.start: float | None = None
         self.next: float | None = None
-        self.frames: list[tuple[Path, float, float, int, int]] = []
+        # each snapshot's picture (PNG bytes, one pixel per cell), grid origin, size, time
+        self.frames: list[tuple[bytes, float, float, int, int, float]] = []
         folder.mkdir()
 
     def maybe_take(self, stamp: float, slam: Any) -> None:
         if self.next is None:
-            self.next = stamp
+            self.start = self.next = stamp
         if stamp < self.next:
             return
         self.next = stamp + self.every
@@ -250,10 +333,15 @@ class SnapshotWriter:
 
     def _take(self, stamp: float, result: Any) -> None:
         s = result.static
-        path = self.folder / f"t{stamp:012.3f}.png"
-        render(s, result.dynamic, result.trajectory, result.landmarks, self.threshold).save(path)
+        since = stamp - (self.start if self.start is not None else stamp)
+        picture = render(s, result.dynamic, result.trajectory, result.landmarks, self.threshold)
         h, w = s.shape
-        self.frames.append((path, s.origin_x, s.origin_y, w, h))
+        canvas, left, top = frame(s, (0, 0, w, h), picture.size, 1, title=_since(since))
+        canvas.paste(picture, (left, top))
+        canvas.save(self.folder / f"t{since:08.1f}s.png")
+        plain = io.BytesIO()
+        picture.save(plain, format="PNG", compress_level=1)
+        self.frames.append((plain.getvalue(), s.origin_x, s.origin_y, w, h, since))
 
     def finish(self, result: Any) -> None:
         """Add the final state and write the GIF, every frame placed on the final canvas."""
@@ -266,20 +354,27 @@ class SnapshotWriter:
         y0 = min(f[2] for f in self.frames)
         x1 = max(f[1] + f[3] * res for f in self.frames)
         y1 = max(f[2] + f[4] * res for f in self.frames)
-        size = (round((x1 - x0) / res), round((y1 - y0) / res))
-        scale = min(1.0, 800 / max(size))
+        cells = (round((x1 - x0) / res), round((y1 - y0) / res))
+        scale = min(1.0, self.GIF_PX / max(cells))
+        size = (max(1, round(cells[0] * scale)), max(1, round(cells[1] * scale)))
 
         def frames() -> Any:
-            for path, ox, oy, _w, h in self.frames:
-                canvas = Image.new("RGB", size, (128, 128, 128))
-                with Image.open(path) as im:
-                    canvas.paste(im, (round((ox - x0) / res), round((y1 - (oy + h * res)) / res)))
+            for png, ox, oy, _w, h, since in self.frames:
+                picture = Image.new("RGB", cells, (128, 128, 128))
+                with Image.open(io.BytesIO(png)) as im:
+                    picture.paste(im, (round((ox - x0) / res), round((y1 - (oy + h * res)) / res)))
                 if scale < 1.0:
-                    canvas = canvas.resize((max(1, round(size[0] * scale)),
-                                            max(1, round(size[1] * scale))), Image.NEAREST)
+                    picture = picture.resize(size, Image.NEAREST)
+                canvas, left, top = frame((x0, y0, res), (0, 0, *cells), size, scale,
+                                          title=_since(since))
+                canvas.paste(picture, (left, top))
                 yield canvas
 
         it = frames()
         first = next(it)
         first.save(self.folder / "evolution.gif", save_all=True, append_images=it,
                    duration=500, loop=0)
+
+
+def _since(seconds: float) -> str:
+    return f"t = {seconds:.1f} s since the log began"

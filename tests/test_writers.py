@@ -136,6 +136,101 @@ def test_map_picture_is_cropped_upscaled_and_framed():
     assert DYNAMIC_RGB in colours and LANDMARK_RGB["dynamic"] in colours  # the legend
 
 
+def _room_maps(rows: int = 60, cols: int = 80) -> tuple[OccupancyMap, OccupancyMap]:
+    """A grid of ``rows`` × ``cols`` 0.05 m cells whose border is wall, free inside."""
+    prob = np.full((rows, cols), 0.02)
+    prob[[0, -1], :] = prob[:, [0, -1]] = 1.0
+    return (OccupancyMap(prob, 0.05, 0.0, 0.0),
+            OccupancyMap(np.full_like(prob, 0.5), 0.05, 0.0, 0.0))
+
+
+def test_events_on_the_maps_edge_are_drawn_inside_the_picture_only():
+    """Objects and a mover's path at the grid's edge and beyond it: the frame (ticks, scale
+    bar, legend) is the same pixel for pixel as without them; inside, they are drawn."""
+    from dynslam_cli.mapping.changes import ChangeEvent
+    from dynslam_formats.picture import CHANGE_RGB, map_picture
+
+    static, dynamic = _room_maps()
+    traj = np.array([[0.0, 1.0, 1.0, 0.0], [1.0, 3.0, 2.0, 0.0]])
+    events = [ChangeEvent(1, "appeared", 0.0, 1.0, 0.0, 0.0, 1.5, 9),
+              ChangeEvent(22, "vacated", 0.0, 1.0, 3.95, 2.95, 2.0, 9),
+              ChangeEvent(333, "moving", 0.0, 1.0, 2.0, 1.5, 0.1, 9,
+                          path=((0.5, 1.5), (3.0, 1.5), (4.5, 3.5)))]
+    plain, _ = map_picture(static, dynamic, traj, [], 0.9)
+    drawn, _ = map_picture(static, dynamic, traj, [], 0.9, changes=events)
+    assert plain.size == drawn.size
+    a, b = np.asarray(plain).astype(int), np.asarray(drawn).astype(int)
+    changed = np.argwhere(np.any(a != b, axis=2))
+    assert len(changed) > 0
+    # the frame's black outline: its top-left corner, and its bottom and right sides
+    outline = np.argwhere(np.all(a == 0, axis=2))
+    top, left = outline.min(axis=0)
+    bottom = max(r for r, c in outline if c == left)
+    right = max(c for r, c in outline if r == top)
+    rows, cols = changed[:, 0], changed[:, 1]
+    assert rows.min() > top and rows.max() < bottom and cols.min() > left and cols.max() < right
+    colours = {tuple(c) for c in b[rows, cols]}
+    assert all(tuple(rgb) in colours for rgb in CHANGE_RGB.values())
+
+
+def test_a_busy_picture_draws_the_largest_events_and_says_how_many_more():
+    """Two hundred events: the MAX_EVENTS_DRAWN largest are drawn, the frame says how many
+    more changes.csv holds, and no two numbers overlap."""
+    from PIL import ImageDraw
+
+    from dynslam_cli.mapping.changes import ChangeEvent
+    from dynslam_formats.picture import MAX_EVENTS_DRAWN, draw_changes, left_out_note
+
+    rng = np.random.default_rng(5)
+    events = [ChangeEvent(i + 1, "appeared", 0.0, 1.0, *rng.uniform(0, 4, 2),
+                          float(rng.uniform(0.01, 1.0)), 9) for i in range(200)]
+    image = Image.new("RGB", (400, 400), (255, 255, 255))
+    draw = ImageDraw.Draw(image)
+    boxes = []
+    original = draw.text
+
+    def text(xy, s, **kw):
+        boxes.append(draw.textbbox(xy, s, font=kw["font"], anchor=kw["anchor"],
+                                   stroke_width=kw["stroke_width"]))
+        original(xy, s, **kw)
+
+    draw.text = text
+    left_out = draw_changes(draw, events, lambda x, y: (x * 100, 400 - y * 100), 100.0,
+                            image.size)
+    assert left_out == 200 - MAX_EVENTS_DRAWN
+    assert "140 more in changes.csv" in left_out_note(200) and left_out_note(60) == ""
+    assert 10 < len(boxes) <= MAX_EVENTS_DRAWN
+    for i, a in enumerate(boxes):
+        assert a[0] >= 0 and a[1] >= 0 and a[2] <= 400 and a[3] <= 400
+        for b in boxes[:i]:
+            assert not (a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3])
+
+
+def test_snapshots_and_the_gif_carry_their_time_and_frame(tmp_path):
+    """Snapshots are named by their seconds since the log began and framed like map.png."""
+    from dynslam_cli.config import Config
+    from dynslam_cli.result import SlamResult
+    from dynslam_formats.picture import SnapshotWriter
+
+    static, dynamic = _room_maps()
+    writer = SnapshotWriter(tmp_path / "snapshots", 5.0, Config())
+
+    class Running:
+        def current(self) -> SlamResult:
+            return SlamResult(static, dynamic, np.array([[100.0, 1.0, 1.0, 0.0]]))
+
+    for stamp in (100.0, 103.0, 105.5, 111.0):
+        writer.maybe_take(stamp, Running())
+    writer.finish(SlamResult(static, dynamic, np.array([[112.25, 1.0, 1.0, 0.0]])))
+    names = sorted(p.name for p in (tmp_path / "snapshots").iterdir())
+    assert names == ["evolution.gif", "t000000.0s.png", "t000005.5s.png", "t000011.0s.png",
+                     "t000012.2s.png"]
+    with Image.open(tmp_path / "snapshots" / "t000005.5s.png") as im:
+        assert im.width > 80 and im.height > 60 + 40  # the map, its ticks, bar and legend
+    with Image.open(tmp_path / "snapshots" / "evolution.gif") as gif:
+        assert gif.n_frames == 4 and gif.width > 80
+
+
 @pytest.mark.parametrize("channels", [1, 2, 3])
 def test_streamed_png_and_pgm_read_back_as_written(tmp_path, channels):
     from dynslam_formats.png import PgmWriter, PngWriter

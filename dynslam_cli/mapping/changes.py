@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -90,6 +90,13 @@ class ChangeEvent:
     size_m2: float
     scans: int
     landmarks: tuple[int, ...] = ()
+    path: tuple[tuple[float, float], ...] = ()
+    """A moving track's way (x, y in time order): its places averaged over PATH_SMOOTH_S,
+    one per PATH_STEP_M (drawn on map.png; not a column of changes.csv)."""
+
+
+PATH_SMOOTH_S = 1.0
+PATH_STEP_M = 0.1
 
 
 COMPACT_AT = 1 << 18  # records of crossed and rising cells kept before compacting them
@@ -226,8 +233,7 @@ def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, fl
     out = []
     for n, e in enumerate(found, start=1):
         near = np.hypot(places[:, 0] - e.x, places[:, 1] - e.y) <= math.sqrt(e.size_m2) / 2
-        out.append(ChangeEvent(n, e.kind, e.first_s, e.last_s, e.x, e.y, e.size_m2, e.scans,
-                               tuple(sorted(ids[near].tolist()))))
+        out.append(replace(e, id=n, landmarks=tuple(sorted(ids[near].tolist()))))
     return out
 
 
@@ -256,8 +262,22 @@ def _tracks(recorder: ChangeRecorder
             size = np.median((b[:, X1] - b[:, X0] + res) * (b[:, Y1] - b[:, Y0] + res))
             moving.append(ChangeEvent(0, "moving", float(t[0]), float(t[-1]),
                                       float(b[:, CX].mean()), float(b[:, CY].mean()),
-                                      float(size), len(b)))
+                                      float(size), len(b), path=_path(t, b[:, CX:CY + 1])))
     return moving, np.vstack(trail), still
+
+
+def _path(t: np.ndarray, places: np.ndarray) -> tuple[tuple[float, float], ...]:
+    """A track's places (N×2, at the sorted stamps ``t``) averaged over the PATH_SMOOTH_S
+    around each (a blob's centre jumps as a walker's legs swing), thinned to the first of
+    every PATH_STEP_M of the way along them, and the last."""
+    lo = np.searchsorted(t, t - PATH_SMOOTH_S / 2, side="left")
+    hi = np.searchsorted(t, t + PATH_SMOOTH_S / 2, side="right")
+    total = np.vstack((np.zeros((1, 2)), np.cumsum(places, axis=0)))
+    places = (total[hi] - total[lo]) / (hi - lo)[:, None]
+    along = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(places, axis=0).T))))
+    _, first = np.unique(np.floor(along / PATH_STEP_M), return_index=True)
+    keep = np.union1d(first, [len(places) - 1])
+    return tuple((float(x), float(y)) for x, y in places[keep])
 
 
 def _one_per_mover(tracks: list[tuple[np.ndarray, np.ndarray]], config: ChangeConfig
