@@ -351,12 +351,14 @@ class ScanMatcher:
             return guess, "fallback", None
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         field = self._map.field()
-        post = search(field, pts, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
+        voxel = cfg.correlative.voxel_m
+        searched = pts[thin(pts, voxel)] if voxel > 0 else pts
+        post = search(field, searched, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
         source = "matched"
         agrees = not _outside(post.pose, guess, (st, st, sr), cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers or not agrees:
             for retry_guess, sigma, is_anchored in self._retry_guesses(odom, (st, st, sr)):
-                retry = search(field, pts, retry_guess, sigma, cfg.correlative,
+                retry = search(field, searched, retry_guess, sigma, cfg.correlative,
                                cfg.min_inliers)
                 if retry.score > post.score:
                     post, source = retry, "recovered"
