@@ -275,17 +275,30 @@ def _window_posterior(field: LogField, pts: np.ndarray, guess: Pose2D,
     a, r, c = np.unravel_index(int(np.argmax(log_post)), log_post.shape)
     w = np.exp(log_post - log_post[a, r, c])
     w /= w.sum()
-    grid = np.stack(np.broadcast_arrays(dm[None, None, :], dm[None, :, None],
-                                        dth[:, None, None]), axis=-1)  # (x, y, θ) offsets
     near = tuple(slice(max(i - PEAK_CELLS, 0), i + PEAK_CELLS + 1) for i in (a, r, c))
-    near_w = w[near].reshape(-1, 1)
-    best = (grid[near].reshape(-1, 3) * near_w).sum(axis=0) / near_w.sum()
-    centred = grid.reshape(-1, 3) - best
-    cov = (centred * w.reshape(-1, 1)).T @ centred
+    near_w = w[near]
+    best = np.array([(near_w.sum(axis=(0, 1)) * dm[near[2]]).sum(),
+                     (near_w.sum(axis=(0, 2)) * dm[near[1]]).sum(),
+                     (near_w.sum(axis=(1, 2)) * dth[near[0]]).sum()]) / near_w.sum()
+    cov = _moments(w, (dth - best[2], dm - best[1], dm - best[0]))[::-1, ::-1]
     cov += np.diag([res * res, res * res, step * step]) / 12.0  # within a cell
     pose = Pose2D(guess.x + best[0], guess.y + best[1], guess.theta + best[2])
     return (Posterior(pose, cov, float(scores[a, r, c] / field.peak)),
             r in (0, 2 * n_xy) or c in (0, 2 * n_xy), a in (0, 2 * n_th))
+
+
+def _moments(w: np.ndarray, offsets: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Second moments Σ w · dᵢ dⱼ of a 3-D weight array ``w`` about the offsets of its three
+    axes (``offsets[i]`` along axis i), from its one- and two-axis marginals: the
+    covariance of the posterior without an array of every cell's offsets."""
+    m = np.empty((3, 3))
+    for i in range(3):
+        others = tuple(k for k in range(3) if k != i)
+        m[i, i] = w.sum(axis=others) @ offsets[i] ** 2
+        for j in range(i + 1, 3):
+            pair = w.sum(axis=3 - i - j)  # axes i, j (in order)
+            m[i, j] = m[j, i] = offsets[i] @ pair @ offsets[j]
+    return m
 
 
 def odometry_log_prior(zx: np.ndarray, zy: np.ndarray, zth: np.ndarray,
