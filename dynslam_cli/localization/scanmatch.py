@@ -123,6 +123,17 @@ def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
                               min(max_range, scan.max_range))
 
 
+class Placed(NamedTuple):
+    """A scan placed in the matcher's frame: its pose, where that came from, its covariance
+    (None: the odometry's noise model applies), and whether it agreed with the scan's wheel
+    odometry (the next retry's anchor)."""
+
+    pose: Pose2D
+    source: str
+    cov: np.ndarray | None = None
+    agrees: bool = True
+
+
 class IcpResult(NamedTuple):
     """A match: the pose, the share of points paired, the RMS of their residuals (m), and the
     information (3×3 over x, y, θ in the reference frame) the pairs alone give the pose."""
@@ -270,7 +281,6 @@ class ScanMatcher:
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
         # the last scan whose match agreed with its wheel odometry: its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
-        self._agrees = True  # whether the scan's match agreed with its wheel odometry
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
         """Motion since the previous scan, in the previous robot frame, where it came from,
@@ -284,13 +294,9 @@ class ScanMatcher:
         guess = compose(self._pose, wheel)
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
-        cov = None
-        self._agrees = True
-        if reference is None:
-            pose, source = guess, "odometry"
-        else:
-            pose, source, cov = self._match(scan, pts, reference, guess, wheel)
-        if self._agrees:
+        pose, source, cov, agrees = (Placed(guess, "odometry") if reference is None
+                                     else self._match(scan, pts, reference, guess, wheel))
+        if agrees:
             self._anchor = (pose, scan.odom)
         inc = relative(self._pose, pose)
         if cov is not None:
@@ -319,25 +325,23 @@ class ScanMatcher:
         return st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg))
 
     def _match(self, scan: Scan, pts: np.ndarray, reference: PointIndex,
-               guess: Pose2D, wheel: Pose2D) -> tuple[Pose2D, str, np.ndarray | None]:
-        """The matched pose (matcher frame) of the scan's points, its source and its
-        covariance."""
+               guess: Pose2D, wheel: Pose2D) -> Placed:
+        """The scan's points placed in the matcher's frame."""
         if self.cfg.method == "correlative" and scan.has_odometry:
             return self._correlative(pts, reference, guess, wheel, scan.odom)
         sigma = self._prior_sigma(scan, wheel)
         match = icp(reference, pts, guess, self.cfg, sigma)
         if self._good(match, pts, guess, sigma):
-            return match.pose, "matched", fused_covariance(match.information, sigma)
+            return Placed(match.pose, "matched", fused_covariance(match.information, sigma))
         if scan.has_odometry:  # odometry glitches (a doubled turn)
             recovered = self._recover(reference, pts, guess, wheel, sigma)
             if recovered is not None:
-                return (recovered.pose, "recovered",
-                        fused_covariance(recovered.information, sigma))
-        return guess, "fallback", None
+                return Placed(recovered.pose, "recovered",
+                              fused_covariance(recovered.information, sigma))
+        return Placed(guess, "fallback")
 
     def _correlative(self, pts: np.ndarray, reference: PointIndex,
-                     guess: Pose2D, wheel: Pose2D, odom: Pose2D
-                     ) -> tuple[Pose2D, str, np.ndarray | None]:
+                     guess: Pose2D, wheel: Pose2D, odom: Pose2D) -> Placed:
         """The correlative search's best pose around the odometry's guess (prior: the
         wheel odometry's noise model), refined by ICP within the search's own uncertainty.
         Its covariance: the refined match's information fused with the odometry's prior
@@ -348,7 +352,7 @@ class ScanMatcher:
         first); nothing good: the odometry."""
         cfg = self.cfg
         if len(pts) < 20:
-            return guess, "fallback", None
+            return Placed(guess, "fallback")
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         field = self._map.field()
         voxel = cfg.correlative.voxel_m
@@ -365,20 +369,19 @@ class ScanMatcher:
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers:
-            self._agrees = False
-            return guess, "fallback", None
-        self._agrees = agrees
+            return Placed(guess, "fallback", agrees=False)
         refined = icp(reference, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
-            return post.pose, source, post.cov
+            return Placed(post.pose, source, post.cov, agrees)
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
                             cfg.correlative.odometry_glitch)
                  if source == "matched" else None)
         if fused is not None:
-            return fused[0], source, fused[1]
-        return refined.pose, source, fused_covariance(refined.information, (st, st, sr))
+            return Placed(fused[0], source, fused[1], agrees)
+        return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
+                      agrees)
 
     def _retry_guesses(self, odom: Pose2D, sigma: tuple[float, float, float]
                        ) -> list[tuple[Pose2D, tuple[float, float, float], bool]]:
