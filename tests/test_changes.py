@@ -183,13 +183,17 @@ def test_tracks_take_the_nearest_blob_and_end_when_unseen():
 
 
 def test_a_movers_path_is_smoothed_in_time_order_even_where_stamps_step_back():
-    """A log's stamps may step back (the raw Intel log's do): the drawn way of a mover is
-    its places in time order, finite, averaged over a second, one per 0.1 m."""
-    from dynslam_cli.mapping.changes import PATH_STEP_M, _path
+    """A log's stamps may step back (the raw Intel log's do): a moving track is put in time
+    order as it is collected (as two joined tracks are), and its drawn way is finite,
+    averaged over a second, one per 0.1 m."""
+    from dynslam_cli.mapping.changes import BLOB_FIELDS, CX, PATH_STEP_M, _merged, _path
 
     t = np.array([0.0, 0.1, 0.2, 0.15, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0])
-    x = 0.5 * t + np.where(np.arange(len(t)) % 2, 0.05, -0.05)  # legs swing ±5 cm
-    path = np.array(_path(t, np.column_stack((x, np.zeros_like(t)))))
+    blobs = np.zeros((len(t), BLOB_FIELDS))
+    blobs[:, CX] = 0.5 * t + np.where(np.arange(len(t)) % 2, 0.05, -0.05)  # legs swing ±5 cm
+    t, blobs = _merged([(t, blobs)])
+    assert np.all(np.diff(t) >= 0)
+    path = np.array(_path(t, blobs[:, CX:CX + 2]))
     assert np.isfinite(path).all() and len(path) >= 2
     assert np.all(np.diff(path[:, 0]) > 0)  # it walks on: no swing left
     assert np.all(np.diff(path[:-1, 0]) >= PATH_STEP_M * 0.9)

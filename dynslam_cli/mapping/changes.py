@@ -255,7 +255,7 @@ def _tracks(recorder: ChangeRecorder
         if np.hypot(*(b[:, CX:CY + 1] - b[0, CX:CY + 1]).T).max() < config.moving_distance_m:
             continue  # (jitter at an object's edge)
         trail.append(np.column_stack((t, b[:, CX:CY + 1])))
-        movers.append((t, b))
+        movers.append(_merged([(t, b)]))  # (in time order: a log's stamps may step back)
     moving = []
     for t, b in _one_per_mover(movers, config):
         if len(b) >= config.min_scans:
@@ -267,12 +267,9 @@ def _tracks(recorder: ChangeRecorder
 
 
 def _path(t: np.ndarray, places: np.ndarray) -> tuple[tuple[float, float], ...]:
-    """A track's places (N×2, at the stamps ``t``) in time order (a log's stamps may step
-    back), averaged over the PATH_SMOOTH_S around each (a blob's centre jumps as a walker's
-    legs swing), thinned to the first of every PATH_STEP_M of the way along them, and the
-    last."""
-    order = np.argsort(t, kind="stable")
-    t, places = t[order], places[order]
+    """A track's places (N×2, at the sorted stamps ``t``) averaged over the PATH_SMOOTH_S
+    around each (a blob's centre jumps as a walker's legs swing), thinned to the first of
+    every PATH_STEP_M of the way along them, and the last."""
     lo = np.searchsorted(t, t - PATH_SMOOTH_S / 2, side="left")
     hi = np.searchsorted(t, t + PATH_SMOOTH_S / 2, side="right")
     total = np.vstack((np.zeros((1, 2)), np.cumsum(places, axis=0)))
