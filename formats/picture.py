@@ -90,7 +90,7 @@ def render(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarray,
         box = (left, top, left + w, top + h)
         picture = image.crop(box)
         draw_changes(ImageDraw.Draw(picture), changes,
-                     lambda x, y: (pixel(x, y)[0] - left, pixel(x, y)[1] - top),
+                     lambda x, y: tuple(np.subtract(pixel(x, y), (left, top))),
                      px_per_cell / res, picture.size)
         image.paste(picture, box[:2])
     return image
@@ -108,16 +108,14 @@ def draw_changes(draw: ImageDraw.ImageDraw, changes: Sequence[ChangeEvent],
     written: list[tuple[float, float, float, float]] = []
     for e in sorted(drawn, key=lambda e: e.id):
         colour = CHANGE_RGB[e.kind]
-        u, v = pixel(e.x, e.y)
-        r = max(3.0, math.sqrt(e.size_m2) / 2 * px_per_m + 2)
         if e.path:
             points = [pixel(x, y) for x, y in e.path]
             if len(points) > 1:
                 draw.line(points, fill=colour, width=1)
-            u, v = points[-1]  # numbered where the mover was last seen
-            r = 3.0
+            (u, v), r = points[-1], 3.0  # numbered where the mover was last seen
             draw.ellipse((u - 2, v - 2, u + 2, v + 2), fill=colour)
         else:
+            (u, v), r = pixel(e.x, e.y), max(3.0, math.sqrt(e.size_m2) / 2 * px_per_m + 2)
             draw.ellipse((u - r, v - r, u + r, v + r), outline=colour, width=2)
         text = str(e.id)
         for at, anchor in (((u + r + 2, v), "lm"), ((u - r - 2, v), "rm"),
@@ -212,16 +210,15 @@ LEGEND = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
           *((rgb, f"{kind} (changes.csv)") for kind, rgb in CHANGE_RGB.items())]
 
 
-def frame(grid: OccupancyMap | tuple[float, float, float], window: tuple[int, int, int, int],
+def frame(lattice: tuple[float, float, float], window: tuple[int, int, int, int],
           size: tuple[int, int], scale: float, title: str = "", note: str = ""
           ) -> tuple[Image.Image, int, int]:
-    """The frame of a picture of ``size`` pixels showing ``window`` (cells of ``grid``, or
-    of a grid given as its origin x, y and resolution, m) at ``scale`` pixels per cell:
+    """The frame of a picture of ``size`` pixels showing ``window`` (cells of a grid whose
+    ``lattice`` is its origin x, y and resolution, m) at ``scale`` pixels per cell:
     ``title`` above, metre ticks (map frame) on the left and bottom, a scale bar, a legend
     and ``note`` below. Returns the canvas and where the picture goes in it (left, top)."""
     font = ImageFont.load_default()
-    ox, oy, res = (grid if isinstance(grid, tuple)
-                   else (grid.origin_x, grid.origin_y, grid.resolution))
+    ox, oy, res = lattice
     c0, r0, c1, r1 = window
     left, top, right = 56, 26 if title else 10, 16
     w, h = size
@@ -288,7 +285,7 @@ def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndar
     very large), framed; and its pixels per cell."""
     window = content_window(static, trajectory, landmarks, occupied_thresh, changes=changes)
     scale, shrink = picture_scale(window)
-    framed = frame(static, window, picture_size(window, scale, shrink), scale / shrink,
+    framed = frame(_lattice(static), window, picture_size(window, scale, shrink), scale / shrink,
                    note=left_out_note(len(changes)))
     render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
            into=framed, changes=changes)
@@ -336,7 +333,8 @@ class SnapshotWriter:
         since = stamp - (self.start if self.start is not None else stamp)
         picture = render(s, result.dynamic, result.trajectory, result.landmarks, self.threshold)
         h, w = s.shape
-        canvas, left, top = frame(s, (0, 0, w, h), picture.size, 1, title=_since(since))
+        canvas, left, top = frame(_lattice(s), (0, 0, w, h), picture.size, 1,
+                                  title=_since(since))
         canvas.paste(picture, (left, top))
         canvas.save(self.folder / f"t{since:08.1f}s.png")
         plain = io.BytesIO()
@@ -374,6 +372,10 @@ class SnapshotWriter:
         first = next(it)
         first.save(self.folder / "evolution.gif", save_all=True, append_images=it,
                    duration=500, loop=0)
+
+
+def _lattice(grid: OccupancyMap) -> tuple[float, float, float]:
+    return grid.origin_x, grid.origin_y, grid.resolution
 
 
 def _since(seconds: float) -> str:

@@ -288,8 +288,8 @@ def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs:
             # (d²/trace bounds the Mahalanobis distance from below: far corners skip solve)
             if (float(d @ d) <= gate_chi2 * float(np.trace(both))
                     and float(d @ np.linalg.solve(both, d)) < gate_chi2):
-                corners[n] = _Corner(c.id, convex, c.seen + seen,
-                                                    c.info + info, c.weighted + info @ xy[k])
+                corners[n] = _Corner(c.id, convex, c.seen + seen, c.info + info,
+                                     c.weighted + info @ xy[k])
                 break
         else:
             corners.append(_Corner(ident, convex, seen, info, info @ xy[k]))
