@@ -28,10 +28,7 @@ from dynslam_cli.localization.frontend import Measure, Measurement
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.localization.scanmatch import scan_points
 from dynslam_cli.mapping.changes import change_events
-from dynslam_cli.mapping.dynamic import (
-    TABLE_3,
-    DynamicMapper,
-)
+from dynslam_cli.mapping.dynamic import DynamicMapper
 from dynslam_cli.mapping.grid import GridStack, OccupancyMap
 from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.scanstore import ScanStore
@@ -53,17 +50,22 @@ class DynamicSlam:
         use_graph = config.loop.enabled and config.ekf.localization == "ekf"
         # With the pose graph the maps are made again at the end; while running, the filter
         # needs S alone (Table 3), and D only if someone looks (:meth:`current`).
-        self.mapper = DynamicMapper(config, dynamic=online_dynamic or not use_graph,
-                                    changes=not use_graph)  # (else: when the maps are remade)
+        self.mapper = self._mapper(changes=not use_graph,  # (else: when the maps are remade)
+                                   keep_dynamic=online_dynamic or not use_graph)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
         self._measure = front.measurement if front is not None else Measure(config)
         self._motion_sources: Counter[str] = Counter()
-        self._loops = LoopCloser(config.loop, config.match, config.ekf) if use_graph else None
+        self._loops = LoopCloser(config.loop, config.match, config.ekf.noise) if use_graph else None
         self._store = ScanStore() if use_graph else None
         self._nodes = array("i")  # per scan: its graph node ...
         self._node_offsets = array("d")  # ... and its pose in that node's EKF frame
         self._count = 0
+
+    def _mapper(self, changes: bool, keep_dynamic: bool = True) -> DynamicMapper:
+        c = self.config
+        return DynamicMapper(c.map, c.laser, c.dynamic, c.changes if changes else None,
+                             keep_dynamic)
 
     @property
     def pose(self) -> Pose2D:
@@ -160,7 +162,7 @@ class DynamicSlam:
         say("optimizing the pose graph", 0, 0)
         self._loops.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.estimates()))
-        mapper = DynamicMapper(self.config, changes=True)
+        mapper = self._mapper(changes=True)
         mapper.grids.reserve_like(self.mapper.grids)
         self.mapper = mapper  # (the online maps are let go before the new ones fill)
         n = len(trajectory)
@@ -245,7 +247,7 @@ class DynamicSlam:
             [(r.id, r.convex, r.observations) for r in records], xy, np.array(covs),
             self.config.ekf.gate_chi2)
         places = np.array([[x, y] for _, _, _, x, y, _ in corners]).reshape(-1, 2)
-        classes = [TABLE_3[int(s)] for s in mapper.classify_landmarks(places)]
+        classes = mapper.classify_landmarks(places)
         return [Landmark(i, x, y, "convex" if convex else "concave", cls, seen,
                          float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
                 for (i, convex, seen, x, y, cov), cls in zip(corners, classes, strict=True)]

@@ -246,7 +246,8 @@ def test_a_walker_in_the_scan_does_not_pull_the_match():
 def test_the_odometrys_noise_is_learned_from_the_log():
     """Increments that match the odometry to a millimetre teach a tenth of the model's
     noise; increments 2.5 times the model's noise off teach 2.5 times the noise."""
-    from dynslam_cli.localization.correlative import ODOMETRY_NOISE, OdometryScale
+    from dynslam_cli.localization.correlative import OdometryScale
+    from dynslam_cli.sections import ODOMETRY_NOISE
 
     rng = np.random.default_rng(5)
     good, poor = OdometryScale(), OdometryScale()

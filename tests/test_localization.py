@@ -108,7 +108,7 @@ def test_association_uses_each_landmark_once():
 def test_table_3(state, cls):
     assert TABLE_3[state] == cls
     slam = _slam_with_landmark(convex=True)
-    slam.classify([0], np.array([state]))
+    slam.classify([0], [TABLE_3[state]])
     assert slam.tracks[0].cls == cls
     before = slam.ekf.x.copy()
     slam.ekf.predict(np.zeros(3), motion_noise(np.zeros(3), NoiseModel()) * 100.0)

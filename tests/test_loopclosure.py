@@ -168,7 +168,7 @@ def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkey
 def test_graph_distance_stops_at_the_nearest_nodes():
     """The window of an online optimization: the nodes nearest to the closure's two ends,
     and no more than asked for; and a search for given nodes stops once it has them."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     d = closer._links.shortest_paths([0, 40], max_nodes=6)
@@ -209,7 +209,7 @@ def test_match_in_a_corridor_is_ambiguous_along_it_and_stays_at_the_guess():
 def test_loop_closer_closes_a_revisit():
     """Drive out and back while the estimate's heading drifts 0.4° a step: the return is tied
     to the places seen on the way out."""
-    closer = LoopCloser(LoopConfig(min_travel_m=3.0), MatchConfig(), EkfConfig())
+    closer = LoopCloser(LoopConfig(min_travel_m=3.0), MatchConfig(), EkfConfig().noise)
     path = [Pose2D(x, 0.0, 0.0) for x in np.arange(0.0, 3.01, 0.5)]
     path += [Pose2D(x, 0.5, 0.0) for x in np.arange(3.0, -0.01, -0.5)]
     front = path[0]
@@ -279,7 +279,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 def test_a_false_loop_closure_waits_and_never_enters_alone():
     """A closure that would bend the graph is held; it enters only with a second closure
     that tells the same story. A lone false one never does, a pair of true ones do."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -303,7 +303,7 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
     """Matches made a step apart see the same view and share its aliasing (a corridor's
     doors matched one door off): they agree with each other, and still wait until a match
     from farther along (``pair_min_separation_m``) tells the same story."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig())
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -323,7 +323,7 @@ def test_graph_distance_follows_the_chain_and_takes_loop_shortcuts():
     """The search window grows with the driving between two nodes through the graph, so a
     place tied by a loop closure is near again however long ago it was first seen."""
     closer = LoopCloser(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
-                        MatchConfig(), EkfConfig())
+                        MatchConfig(), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     d = closer.graph_distance(40)

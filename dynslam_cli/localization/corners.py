@@ -20,32 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynslam_cli.localization import _corners
+from dynslam_cli.sections import CornerConfig
 
 MAX_BEAMS_BETWEEN_SIDES = 3  # beams at the very corner may form a run of their own
-
-
-@dataclass(frozen=True)
-class CornerConfig:
-    """Corner detector parameters (units in the names)."""
-
-    jump_m: float = 0.25
-    """Range jump between neighbouring beams that splits a cluster (plus jump_ratio · r)."""
-    jump_ratio: float = 0.05
-    """Share of the range r added to ``jump_m`` (a fraction): far beams lie farther apart."""
-    split_tolerance_m: float = 0.04
-    """A run is straight while no point is farther than this from its chord."""
-    min_points: int = 7
-    """Each side of a corner must hold at least this many beams."""
-    min_length_m: float = 0.35
-    """... and be at least this long."""
-    max_fit_rms_m: float = 0.03
-    """... and fit its line with at most this RMS residual."""
-    min_angle_deg: float = 50.0
-    """Angle between the two sides: a corner is between min and 180 − min degrees."""
-    max_gap_m: float = 0.15
-    """The lines' intersection must lie this close to the last point of each side."""
-    max_range_m: float = 7.0
-    """No corners beyond this range (or within 5% of the laser's max range)."""
 
 
 @dataclass(frozen=True)

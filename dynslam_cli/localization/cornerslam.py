@@ -18,41 +18,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dynslam_cli.geometry import compose
-from dynslam_cli.localization.corners import Corner, CornerConfig, detect_corners
-from dynslam_cli.localization.ekf import Ekf, NoiseModel, inverse_observe, motion_noise
-from dynslam_cli.mapping.dynamic import TABLE_3
+from dynslam_cli.localization.corners import Corner, detect_corners
+from dynslam_cli.localization.ekf import Ekf, inverse_observe, motion_noise
+from dynslam_cli.sections import CornerConfig, EkfConfig
 from dynslam_cli.types import Pose2D, Scan
 
 NO_ODOMETRY_NOISE_SCALE = 50.0  # × the motion-noise floor: ~0.1 m and 5° per scan
-
-
-@dataclass(frozen=True)
-class EkfConfig:
-    """Localization parameters."""
-
-    localization: str = "ekf"
-    """``ekf`` (corner EKF-SLAM) or ``odometry`` (no correction, paper Fig. 3a)."""
-    gate_chi2: float = 9.21
-    """Mahalanobis gate for data association (χ², 2 dof; 9.21 = 99%)."""
-    search_radius_m: float = 1.5
-    """Only landmarks this close to an observation are considered for association."""
-    confirm_observations: int = 3
-    """A new corner becomes a landmark after this many sightings ..."""
-    candidate_radius_m: float = 0.25
-    """... within this distance of each other ..."""
-    candidate_expiry_scans: int = 15
-    """... each within this many scans of the previous one."""
-    max_landmarks: int = 300
-    """At most this many landmarks in the filter (its cost grows with their square): beyond,
-    the least recently seen leave it first."""
-    active_window_scans: int = 30
-    """A landmark not seen for this many scans leaves the filter (the EKF corrects with
-    what it has just seen; a corner seen again after longer is matched under a pose that
-    drifted meanwhile, a loop closure nothing verified, and is confirmed anew instead: the
-    landmark map fuses the two, and the pose graph closes the loop) ..."""
-    keep_observations: int = 5
-    """... and is kept in the landmark map if it was seen at least this often."""
-    noise: NoiseModel = field(default_factory=NoiseModel)
 
 
 @dataclass
@@ -168,10 +139,11 @@ class CornerSlam:
             pairs.append((i, observations[k][0]))
         return pairs, used_obs | set(near_something)
 
-    def classify(self, landmarks: list[int], states: np.ndarray) -> None:
-        """Table 3 for these landmarks, from the S^{t-1} state at their places."""
-        for i, state in zip(landmarks, states, strict=True):
-            self.tracks[i].cls = TABLE_3[int(state)]
+    def classify(self, landmarks: list[int], classes: list[str]) -> None:
+        """These landmarks' classes by Table 3 ("static" or "dynamic", from the static map:
+        :meth:`DynamicMapper.classify_landmarks`); only static ones correct the pose."""
+        for i, cls in zip(landmarks, classes, strict=True):
+            self.tracks[i].cls = cls
 
     def correct(self, pairs: list[tuple[int, np.ndarray]]) -> int:
         """Update with every associated static landmark; returns how many were used."""

@@ -24,62 +24,15 @@ every offset along it scores the same, small at a corner; where the scan sees no
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
 from dynslam_cli.localization import _loops
-from dynslam_cli.localization.ekf import NoiseModel, motion_std
+from dynslam_cli.localization.ekf import motion_std
+from dynslam_cli.sections import CorrelativeConfig, NoiseModel
 from dynslam_cli.types import Pose2D
-
-ODOMETRY_NOISE = NoiseModel(trans_per_m=0.1, rot_per_rad=0.2, rot_per_m_deg=5.0,
-                            trans_floor_m=0.01, rot_floor_deg=0.5)
-
-
-@dataclass(frozen=True)
-class CorrelativeConfig:
-    """Its lookup table, the odometry's prior and the window searched."""
-
-    resolution_m: float = 0.05
-    """Cell of the lookup table and step of the translation search (m)."""
-    field_sigma_m: float = 0.05
-    """Spread of a beam's end point about the wall it hit (m)."""
-    outlier_share: float = 0.1
-    """Probability that an end point is not on the submap's walls at all."""
-    effective_points: float = 40.0
-    """A scan's end points count as this many independent ones in the posterior."""
-    odometry: NoiseModel = field(default_factory=lambda: ODOMETRY_NOISE)
-    """The wheel odometry's noise, the prior of each match (its range keys are not used).
-    The defaults are what the benchmark's real robots show between poses under 5 s apart
-    (Kümmerle et al. relations against the raw odometry: 2.5° rms over 0.45 m with 2° of
-    turn, 4.4° over 11°, 4-8% of the distance): five times the EKF's default rotation
-    noise."""
-    learn_odometry: bool = False
-    """Scale the odometry's noise model by what the log shows (OdometryScale): a robot whose
-    odometry is better than the model (a simulator's, a well-calibrated one) is followed
-    more closely, one whose odometry is worse is trusted less. Off: on the built-in worlds
-    with perfect odometry it wins (ATE 0.0014-0.016 m), but on the Radish logs it loses
-    (geometric mean of the ATE ratios to ICP 1.49 against 1.07 without; csail 2.7 m at
-    every level): a SLAM-corrected "perfect" odometry jumps where its own loops closed,
-    and a model learned from the smooth stretches trusts it there too."""
-    odometry_glitch: float = 1e-3
-    """The odometry's prior never falls below this share of its peak (slips, glitches)."""
-    window_sigmas: float = 3.0
-    """The window spans this many of the odometry prior's standard deviations ..."""
-    min_window_m: float = 0.1
-    """... but at least this far either way in translation (metres) ..."""
-    min_window_deg: float = 3.0
-    """... and in rotation (degrees) ..."""
-    max_window_m: float = 1.0
-    """... and at most this far in translation (metres) ..."""
-    max_window_deg: float = 60.0
-    """... and in rotation (degrees)."""
-    voxel_m: float = 0.0
-    """The scan's end points searched are one per square of this side (the first in beam
-    order; 0: all of them): near the robot a scan's end points crowd (a wall 1 m away holds
-    ten times the points of one 10 m away) and add little but time; the ICP that refines
-    the search's pose uses them all."""
 
 
 class OdometryScale:

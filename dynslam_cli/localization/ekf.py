@@ -11,36 +11,14 @@ because H touches only the robot and one landmark.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from dynslam_cli.geometry import wrap_angle
+from dynslam_cli.sections import NoiseModel
 
 ROBOT = 3  # state entries of the robot pose
 LM = 2  # state entries per landmark
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Motion noise grows with the motion; measurement noise with the range."""
-
-    trans_per_m: float = 0.05
-    """Std of translation error per metre driven (fraction)."""
-    rot_per_rad: float = 0.05
-    """Std of rotation error per radian turned (fraction)."""
-    rot_per_m_deg: float = 1.0
-    """Std of rotation error per metre driven (degrees)."""
-    trans_floor_m: float = 0.002
-    """Added to every motion's std of translation error, however small the motion (metres) ..."""
-    rot_floor_deg: float = 0.1
-    """... and to its std of rotation error (degrees)."""
-    range_m: float = 0.03
-    """Std of a corner's measured range (metres) ..."""
-    range_per_m: float = 0.01
-    """... plus this much per metre of that range (fraction)."""
-    bearing_deg: float = 1.0
-    """Std of a corner's measured bearing (degrees)."""
 
 
 # -- motion model ---------------------------------------------------------------------------

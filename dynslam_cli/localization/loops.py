@@ -34,88 +34,11 @@ import numpy as np
 from dynslam_cli.geometry import compose, inverse, relative, transform_points
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
-from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.ekf import motion_std
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
-from dynslam_cli.localization.scanmatch import MatchConfig, icp
+from dynslam_cli.localization.scanmatch import icp
+from dynslam_cli.sections import LoopConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D
-
-
-@dataclass(frozen=True)
-class LoopConfig:
-    """Pose-graph and loop-closure parameters (units in the names)."""
-
-    enabled: bool = True
-    """False: the EKF's estimate is the result (no pose graph)."""
-    node_distance_m: float = 0.5
-    """A new graph node after this much motion ..."""
-    node_angle_deg: float = 15.0
-    """... or this much turning."""
-    min_travel_m: float = 8.0
-    """Only nodes at least this far back along the path are loop candidates."""
-    search_radius_m: float = 1.0
-    """Candidates lie within this radius of the current estimate ..."""
-    drift_per_m: float = 0.05
-    """... plus this share of the graph distance between the two nodes (the driving between
-    them, loop closures being shortcuts: see :meth:`LoopCloser.graph_distance`) ..."""
-    max_search_radius_m: float = 6.0
-    """... up to this."""
-    search_angle_deg: float = 10.0
-    """Rotation window of the search (plus 1° per 10 m of graph distance)."""
-    max_search_angle_deg: float = 30.0
-    """... up to this (degrees)."""
-    submap_nodes: int = 4
-    """Scans of this many nodes on each side of the old node make the matched submap."""
-    query_nodes: int = 0
-    """The new scan plus this many earlier nodes' scans are matched."""
-    min_score: float = 0.55
-    """Mean likelihood of the matched points (0–1) for a closure."""
-    min_constraint_ratio: float = 0.1
-    """Scans that constrain their position this much less in one direction than in the other
-    (a corridor's two walls) are not matched."""
-    max_ambiguity_m: float = 1.0
-    """A match that could slide farther than this (standard deviation of the equally good
-    offsets, e.g. along a featureless corridor) is not used."""
-    min_inliers: float = 0.65
-    """The match refined by ICP must pair up this share of the points ..."""
-    max_rms_m: float = 0.05
-    """... at most this far from their lines, RMS (metres)."""
-    attempt_every_m: float = 1.0
-    """Try at most once per this much driven (a closure just made needs no repeat)."""
-    chain_noise_scale: float = 1.5
-    """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
-    agree_chi2: float = 0.1
-    """A closure whose error under the current estimate is below this χ² already agrees
-    with the graph: the optimization waits (for the next disagreeing closure or the end),
-    so revisiting a well-mapped place does not re-solve the whole graph every metre."""
-    edge_sigma_m: float = 0.05
-    """Added (as a standard deviation) to a loop edge's translation uncertainty."""
-    consistent_chi2: float = 11.34
-    """A closure within this χ² of the graph's estimate (99%, 3 dof) is added at once; any
-    other waits for a second closure that agrees with it ..."""
-    pair_window_m: float = 50.0
-    """... made within this much driving after it (the last ``pending_closures`` wait) ..."""
-    pair_min_separation_m: float = 3.0
-    """... but at least this far along (two matches from nearly the same place see the same
-    view, so they share its aliasing: a corridor's doors matched one door off) ..."""
-    pair_tolerance_m: float = 0.15
-    """... closing the loop of the two closures to this distance (metres, plus
-    ``drift_per_m`` times the path between their ends) ..."""
-    pair_tolerance_deg: float = 2.0
-    """... and this angle (degrees) ..."""
-    pair_drift_deg_per_m: float = 0.2
-    """... plus this much per metre of that path (degrees per metre)."""
-    pending_closures: int = 8
-    """Closures waiting for a partner: at most this many, the oldest dropped first."""
-    online_nodes: int = 2000
-    """While the log runs, an optimization moves at most this many nodes: those nearest,
-    through the graph, to the closure just made (the rest hold until the whole graph is
-    optimized at the end), so a closure costs the same late in a long log as early on ..."""
-    online_flops: float = 15e6
-    """... and only as many of them as a factorization of about this many multiplications
-    holds (a place revisited for hours ties its passes together: 2000 nodes of a hall driven
-    for 4 h took a median 2.5 times the factorization work of the 1 h log's)."""
-
 
 FIELD_RES_M = 0.05
 FIELD_SIGMA_M = 0.08
@@ -322,10 +245,10 @@ class Links:
 class LoopCloser:
     """Keeps the graph, the key scans and the closures."""
 
-    def __init__(self, cfg: LoopConfig, match: MatchConfig, ekf: EkfConfig) -> None:
+    def __init__(self, cfg: LoopConfig, match: MatchConfig, motion_noise: NoiseModel) -> None:
         self.cfg = cfg
         self.match = match
-        self.ekf = ekf
+        self.motion_noise = motion_noise  # the EKF's: of its motion between two nodes
         self.graph = PoseGraph()
         self.local_poses: list[Pose2D] = []  # the EKF's pose at each node
         self.points: list[np.ndarray] = []  # each node's scan points, robot frame
@@ -356,7 +279,7 @@ class LoopCloser:
         z = relative(self.local_poses[-1], local_pose)
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
-        st, sr = motion_std(z.x, z.y, z.theta, self.ekf.noise)
+        st, sr = motion_std(z.x, z.y, z.theta, self.motion_noise)
         info = np.diag(1.0 / (np.array([st * st, st * st, sr * sr])
                               * self.cfg.chain_noise_scale ** 2))
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)

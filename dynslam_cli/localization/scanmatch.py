@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +27,6 @@ from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
-    CorrelativeConfig,
     LogField,
     OdometryScale,
     log_field,
@@ -36,7 +34,8 @@ from dynslam_cli.localization.correlative import (
     search,
     with_points,
 )
-from dynslam_cli.localization.ekf import NoiseModel, motion_std
+from dynslam_cli.localization.ekf import motion_std
+from dynslam_cli.sections import MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
@@ -54,63 +53,6 @@ MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations fr
 # The correlative table is made anew from the local map's key scans after this many new ones
 # (between, each is added to it): a table of 64 key scans costs as much as matching ten scans.
 REBUILD_KEYS = 16
-
-
-@dataclass(frozen=True)
-class MatchConfig:
-    """Scan matching: each scan's motion, measured against a local map of key scans, is the
-    EKF's control input."""
-
-    enabled: bool = True
-    """False: the EKF predicts from wheel odometry alone."""
-    method: str = "correlative"
-    """"correlative": the best pose of a window around the odometry's guess on the local
-    map's likelihood (see dynslam_cli.localization.correlative), refined by ICP and fused
-    with the odometry by their information. "icp": point-to-line ICP from the odometry's
-    guess, with retries from turned guesses where it fails (the default before the
-    benchmark's raw logs showed the correlative search ahead on every one; best with
-    ``local_map_scans = 8``)."""
-    max_range_m: float = 20.0
-    """Readings beyond this are not matched."""
-    subsample: int = 1
-    """Use every n-th beam of the current scan."""
-    iterations: int = 24
-    """Gauss-Newton steps, over which the pairing gate shrinks from ``max_correspondence_m``
-    to ``min_correspondence_m``: slowly enough for a match from a poor odometry guess to
-    converge (with 12, outdoor and open-hall matches kept a fifth of the odometry's heading
-    error)."""
-    max_correspondence_m: float = 0.5
-    """Pairs farther apart than this (at the first iteration) are ignored ..."""
-    min_correspondence_m: float = 0.1
-    """... shrinking to this by the last iteration."""
-    min_inliers: float = 0.5
-    """Share of points that must pair up for the match to count."""
-    max_rms_m: float = 0.08
-    """... and whose pairs lie at most this far from their lines, RMS (metres)."""
-    prior_scale: float = 1.0
-    """The odometry prior's standard deviations are the motion noise's times this ..."""
-    prior_floor_m: float = 0.0
-    """... and at least this (translation) ..."""
-    prior_floor_deg: float = 5.0
-    """... and this (rotation): wheel odometry of real robots slips in fast turns."""
-    key_distance_m: float = 0.5
-    """A scan becomes a key scan of the local map after this much motion (metres) ..."""
-    key_angle_deg: float = 15.0
-    """... or this much turning (degrees) since the last key scan."""
-    local_map_scans: int = 64
-    """Key scans in the local map each scan is matched against (1: the last key scan):
-    about 32 m of travel at the default spacing, so the walls are held long enough that the
-    long relations of the benchmark logs do not drift."""
-    local_map_cell_m: float = 0.05
-    """The local map keeps one point per square of this side (overlapping key scans)."""
-    normal_neighbours: int = 6
-    """Points whose spread gives a local-map point's normal."""
-    effective_pairs: float = 100.0
-    """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
-    against shares its key scans' errors): for the match's information they count as this
-    many independent pairs, or as themselves where there are fewer."""
-    correlative: CorrelativeConfig = field(default_factory=CorrelativeConfig)
-    """The correlative search (method = "correlative")."""
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:

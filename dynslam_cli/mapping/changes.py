@@ -22,59 +22,14 @@ from __future__ import annotations
 import math
 from array import array
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dynslam_cli.mapping import _changes, _grid
 from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
-
-if TYPE_CHECKING:
-    from dynslam_cli.config import Config
+from dynslam_cli.sections import ChangeConfig, MapConfig
 
 KINDS = ("appeared", "vacated", "moving")
-
-
-@dataclass(frozen=True)
-class ChangeConfig:
-    """Change events (changes.csv): objects that appeared, places vacated, movers' tracks."""
-
-    enabled: bool = True
-    """False: no change events (changes.csv has its header only)."""
-    blob_gap_m: float = 0.2
-    """End points of successive beams closer than this (metres) belong to one object."""
-    track_gate_m: float = 0.5
-    """A blob continues the track whose last blob is nearest, if within this (metres) ..."""
-    track_gap_s: float = 1.0
-    """... and seen at most this long ago (seconds)."""
-    moving_speed_m_s: float = 0.15
-    """A track whose place changes faster than this is moving (m/s; the median of its speed
-    over ``still_s / 2`` at a time, so a standing object seen from another side, whose seen
-    centre jumps once, stays still)."""
-    moving_distance_m: float = 0.5
-    """... and it must also go this far from where it was first seen (metres): further than
-    the seen centre of a standing object wanders."""
-    still_s: float = 3.0
-    """An object counts as standing (appeared, or vacated from S) only if it was seen
-    standing for this long (seconds; appeared: in at least half the scans of that time): a
-    walker stands nowhere that long."""
-    merge_distance_m: float = 0.3
-    """Stationary tracks whose places lie this close (metres) are one object."""
-    join_gap_s: float = 2.0
-    """Two moving tracks are one mover's if the second begins at most this long after the
-    first was last seen (seconds; or while it is still seen: a walker's two legs) ..."""
-    walker_speed_m_s: float = 2.0
-    """... no farther from the first's last place than ``track_gate_m`` plus this speed
-    (m/s) times the time between: a person who stops, or is hidden a moment, and walks on
-    is one track."""
-    min_scans: int = 5
-    """An event needs evidence from at least this many scans."""
-    min_area_m2: float = 0.02
-    """A vacated place needs at least this many square metres of cells gone Free."""
-    max_object_m2: float = 4.0
-    """An object that appeared or vacated its place is at most this large (square metres of
-    its footprint: a pallet, a table, a parked cart): beyond, it is the map disagreeing
-    with itself (a wing drawn twice, a wall seen through a doorway), not reported."""
 
 
 @dataclass(frozen=True)
@@ -113,9 +68,8 @@ class ChangeRecorder:
     *sightings* (blobs of hits where S^{t-1} was Free), the *clearings* (blobs of cells D
     held Occupied that a beam crossed) and the cells S held Occupied that a beam crossed."""
 
-    def __init__(self, config: Config, grids: GridStack) -> None:
-        m = config.map
-        self.config = config.changes
+    def __init__(self, config: ChangeConfig, m: MapConfig, grids: GridStack) -> None:
+        self.config = config
         self.grids = grids
         self._occupied = int(steps(logit(m.occupied_threshold)))
         self.free_limit = int(steps(logit(m.free_threshold)))

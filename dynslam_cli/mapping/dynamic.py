@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,10 +18,8 @@ from dynslam_cli.geometry import compose
 from dynslam_cli.mapping import _grid
 from dynslam_cli.mapping.changes import ChangeRecorder
 from dynslam_cli.mapping.grid import LOGODDS_STEP, GridStack, Observation, logit, steps
+from dynslam_cli.sections import ChangeConfig, DynamicConfig, LaserConfig, MapConfig
 from dynslam_cli.types import Pose2D, Scan
-
-if TYPE_CHECKING:
-    from dynslam_cli.config import Config
 
 FREE, UNKNOWN, OCCUPIED = 0, 1, 2
 STATE_NAMES = ("Free", "Unknown", "Occupied")
@@ -114,12 +111,15 @@ class DynamicMapper:
     """The two grids of Sec. 3: each scan, seen from a pose, is classified against S^{t-1}
     and updates S (Eq. 12, Table 1) and D (Eq. 13, Table 2)."""
 
-    def __init__(self, config: Config, dynamic: bool = True, changes: bool = False) -> None:
-        self.config = config
-        self._keep_dynamic = dynamic  # False: S only (D is made again at the end)
-        m, d = config.map, config.dynamic
+    def __init__(self, m: MapConfig, laser: LaserConfig, d: DynamicConfig,
+                 changes: ChangeConfig | None = None, keep_dynamic: bool = True) -> None:
+        """``changes``: record the evidence of change events by these settings (None or
+        disabled: not); ``keep_dynamic`` False: S only (D is made again at the end)."""
+        self._map = m
+        self._laser = laser
+        self._keep_dynamic = keep_dynamic
         self._radius = radius_cells(d.neighbourhood_m, m.resolution_m) if d.enabled else 0
-        layers = ("static", "dynamic") if dynamic else ("static",)
+        layers = ("static", "dynamic") if keep_dynamic else ("static",)
         self.grids = GridStack(m.resolution_m, m.grow_margin_m, layers,
                                pad_cells=self._radius, max_extent_m=m.max_extent_m)
         static_model = InverseModel.from_probabilities(m.p_hit, m.p_miss, m.p_clamp_min,
@@ -134,8 +134,8 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
-        self.changes = (ChangeRecorder(config, self.grids)
-                        if changes and d.enabled and config.changes.enabled else None)
+        self.changes = (ChangeRecorder(changes, m, self.grids)
+                        if changes is not None and changes.enabled and d.enabled else None)
         """The evidence of change events, if asked for (S/D separation only)."""
         self._free_rows_uniform = all(np.ptp(t[:, 0]) == 0 for t in (self._table_1,
                                                                       self._table_2)
@@ -150,20 +150,21 @@ class DynamicMapper:
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
 
-    def classify_landmarks(self, positions: np.ndarray) -> np.ndarray:
-        """State of S^{t-1} around each landmark (neighbourhood rule), for Table 3. Without
-        S/D separation every landmark counts as Occupied (static)."""
+    def classify_landmarks(self, positions: np.ndarray) -> list[str]:
+        """Table 3: each landmark's class ("static" or "dynamic") by the state of S^{t-1}
+        around it (neighbourhood rule). Without S/D separation every landmark is static."""
         if self._table_2 is None or len(positions) == 0:
-            return np.full(len(positions), OCCUPIED, np.int8)
-        m = self.config.map
+            return [TABLE_3[OCCUPIED]] * len(positions)
+        m = self._map
         rows, cols = self.grids.world_cells_of(positions[:, 0], positions[:, 1])
-        return self.grids.classify_world_cells("static", rows, cols, self._radius,
-                                               logit(m.free_threshold),
-                                               logit(m.occupied_threshold))
+        states = self.grids.classify_world_cells("static", rows, cols, self._radius,
+                                                 logit(m.free_threshold),
+                                                 logit(m.occupied_threshold))
+        return [TABLE_3[int(s)] for s in states]
 
     def observe(self, pose: Pose2D, scan: Scan) -> Observation:
         """Cells the scan saw free and cells it hit, from the laser's pose in the map."""
-        laser = self.config.laser
+        laser = self._laser
         return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
                                   scan.max_range, laser.min_range_m, laser.clear_cap_m)
 
@@ -172,7 +173,7 @@ class DynamicMapper:
         neighbourhood of each cell hit (Sec. 5)."""
         if self._table_2 is None:  # an ordinary grid: the state does not matter
             return (np.zeros(len(obs.free), np.int8), np.zeros(len(obs.hit), np.int8))
-        m = self.config.map
+        m = self._map
         s = self.grids.layers["static"].reshape(-1)
         if self._free_rows_uniform:  # Tables 1 and 2 give "low" whatever S^{t-1} was
             free_prev = np.zeros(len(obs.free), np.int8)

@@ -1,0 +1,501 @@
+"""The configuration's sections: one frozen dataclass per component, holding that
+component's parameters with their units, each checking its own ranges.
+
+Pure data: nothing here imports an algorithm module, so every part of the program can take
+its own section as a plain argument (the scan matcher its ``MatchConfig``, the mapper its
+``MapConfig`` and ``DynamicConfig``) without reaching into the others. The whole tree of
+them, read from TOML, is :class:`dynslam_cli.config.Config`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from dynslam_cli.errors import ConfigError
+from dynslam_cli.types import Scan
+
+
+def require(checks: list[tuple[bool, str]]) -> None:
+    """Raise ConfigError with the message of the first check that failed."""
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Motion noise grows with the motion; measurement noise with the range."""
+
+    trans_per_m: float = 0.05
+    """Std of translation error per metre driven (fraction)."""
+    rot_per_rad: float = 0.05
+    """Std of rotation error per radian turned (fraction)."""
+    rot_per_m_deg: float = 1.0
+    """Std of rotation error per metre driven (degrees)."""
+    trans_floor_m: float = 0.002
+    """Added to every motion's std of translation error, however small the motion (metres) ..."""
+    rot_floor_deg: float = 0.1
+    """... and to its std of rotation error (degrees)."""
+    range_m: float = 0.03
+    """Std of a corner's measured range (metres) ..."""
+    range_per_m: float = 0.01
+    """... plus this much per metre of that range (fraction)."""
+    bearing_deg: float = 1.0
+    """Std of a corner's measured bearing (degrees)."""
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """Occupancy grids: geometry and the inverse sensor model of an ordinary grid."""
+
+    resolution_m: float = 0.05
+    """Cell edge length (metres)."""
+    p_hit: float = 0.85
+    """Inverse sensor model value for a cell where a beam ended (probability)."""
+    p_miss: float = 0.35
+    """Inverse sensor model value for a cell a beam passed through (probability)."""
+    p_clamp_min: float = 0.02
+    """The lowest probability a cell can hold: log-odds are clamped to [logit(p_clamp_min),
+    logit(p_clamp_max)] so maps stay revisable."""
+    p_clamp_max: float = 0.98
+    """The highest probability a cell can hold."""
+    free_threshold: float = 0.1
+    """A cell with p below this is Free (paper Sec. 3.1: 0.1)."""
+    occupied_threshold: float = 0.9
+    """A cell with p above this is Occupied (paper Sec. 3.1: 0.9)."""
+    grow_margin_m: float = 10.0
+    """When the robot leaves the grid, it grows by at least this much on that side (metres)."""
+    max_extent_m: float = 2000.0
+    """The map may span at most this much in x and in y (metres); a run whose map would grow
+    beyond stops with an error (an odometry jump, a unit error)."""
+
+    def check(self) -> None:
+        require([
+            (0.005 <= self.resolution_m <= 10, "map.resolution_m must be in [0.005, 10] m"),
+            (self.max_extent_m > 0, "map.max_extent_m must be > 0"),
+            (0.5 < self.p_hit < 1, "map.p_hit must be in (0.5, 1)"),
+            (0 < self.p_miss < 0.5, "map.p_miss must be in (0, 0.5)"),
+            (0 < self.p_clamp_min < 0.5 < self.p_clamp_max < 1,
+             "map clamp must be 0 < p_clamp_min < 0.5 < p_clamp_max < 1"),
+            (0 < self.free_threshold < 0.5 < self.occupied_threshold < 1,
+             "map thresholds must be 0 < free_threshold < 0.5 < occupied_threshold < 1"),
+            (self.grow_margin_m > 0, "map.grow_margin_m must be > 0"),
+        ])
+
+
+@dataclass(frozen=True)
+class LaserConfig:
+    """How readings are interpreted."""
+
+    min_range_m: float = 0.02
+    """Readings at or below this are invalid (SICK error codes are often 0) and dropped."""
+    max_range_m: float | None = None
+    """Override the log's max range (metres); readings at or above it are 'no return'."""
+    clear_cap_m: float = 10.0
+    """A no-return beam clears free space up to this distance (metres) and marks no hit."""
+    fov_deg: float | None = None
+    """Field of view for logs whose records carry no beam angles (old FLASER), overriding
+    CARMEN's rule (degrees). The first beam is at -fov/2, beams evenly spaced."""
+
+    def limit(self, scan: Scan) -> Scan:
+        """The scan with ``max_range_m`` as its max range where set, so every consumer
+        (scan matching, corners, loop closure, the maps) sees the same no-return rule."""
+        if self.max_range_m is None or scan.max_range == self.max_range_m:
+            return scan
+        return dataclasses.replace(scan, max_range=self.max_range_m)
+
+    def check(self) -> None:
+        require([
+            (self.clear_cap_m > 0, "laser.clear_cap_m must be > 0"),
+            (self.min_range_m >= 0, "laser.min_range_m must be >= 0"),
+            (self.max_range_m is None or self.max_range_m > 0, "laser.max_range_m must be > 0"),
+            (self.fov_deg is None or 0 < self.fov_deg <= 360,
+             "laser.fov_deg must be in (0, 360]"),
+        ])
+
+
+@dataclass(frozen=True)
+class DynamicConfig:
+    """The dynamic map D (paper Sec. 3.2) and the neighbourhood rule (Sec. 5).
+
+    S uses the ``[map]`` values: ``p_hit`` is Table 1's *high*, ``p_miss`` its *low*.
+    """
+
+    enabled: bool = True
+    """False: one ordinary occupancy grid, D stays empty (``--no-dynamic``, paper Fig. 3b)."""
+    p_high: float = 0.97
+    """Table 2's *high*: a hit where S was Free (probability); two in a row make a cell
+    Occupied in D from Free."""
+    p_low: float = 0.0001
+    """Table 2's *low*. Very low so one free observation clears D: D keeps no history."""
+    p_clamp_min: float = 0.05
+    """The lowest probability a cell of D can hold (its log-odds clamped, as S's)."""
+    p_clamp_max: float = 0.99
+    """The highest probability a cell of D can hold."""
+    neighbourhood_m: float = 0.1
+    """An end point is compared with S^{t-1} over a square window of this half-width
+    (metres), so small pose or rounding errors do not turn walls dynamic (Sec. 5)."""
+
+    def check(self) -> None:
+        require([
+            (0.5 < self.p_high < 1, "dynamic.p_high must be in (0.5, 1)"),
+            (0 < self.p_low < 0.5, "dynamic.p_low must be in (0, 0.5)"),
+            (0 < self.p_clamp_min < 0.5 < self.p_clamp_max < 1,
+             "dynamic clamp must be 0 < p_clamp_min < 0.5 < p_clamp_max < 1"),
+            (0 <= self.neighbourhood_m <= 1.0, "dynamic.neighbourhood_m must be in [0, 1] m"),
+        ])
+
+
+@dataclass(frozen=True)
+class CornerConfig:
+    """Corner detector parameters (units in the names)."""
+
+    jump_m: float = 0.25
+    """Range jump between neighbouring beams that splits a cluster (plus jump_ratio · r)."""
+    jump_ratio: float = 0.05
+    """Share of the range r added to ``jump_m`` (a fraction): far beams lie farther apart."""
+    split_tolerance_m: float = 0.04
+    """A run is straight while no point is farther than this from its chord."""
+    min_points: int = 7
+    """Each side of a corner must hold at least this many beams."""
+    min_length_m: float = 0.35
+    """... and be at least this long."""
+    max_fit_rms_m: float = 0.03
+    """... and fit its line with at most this RMS residual."""
+    min_angle_deg: float = 50.0
+    """Angle between the two sides: a corner is between min and 180 − min degrees."""
+    max_gap_m: float = 0.15
+    """The lines' intersection must lie this close to the last point of each side."""
+    max_range_m: float = 7.0
+    """No corners beyond this range (or within 5% of the laser's max range)."""
+
+    def check(self) -> None:
+        require([
+            (self.min_points >= 3 and self.min_length_m > 0,
+             "corners: min_points >= 3, length > 0"),
+            (0 < self.min_angle_deg < 90, "corners.min_angle_deg must be in (0, 90)"),
+        ])
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Localization parameters."""
+
+    localization: str = "ekf"
+    """``ekf`` (corner EKF-SLAM) or ``odometry`` (no correction, paper Fig. 3a)."""
+    gate_chi2: float = 9.21
+    """Mahalanobis gate for data association (χ², 2 dof; 9.21 = 99%)."""
+    search_radius_m: float = 1.5
+    """Only landmarks this close to an observation are considered for association."""
+    confirm_observations: int = 3
+    """A new corner becomes a landmark after this many sightings ..."""
+    candidate_radius_m: float = 0.25
+    """... within this distance of each other ..."""
+    candidate_expiry_scans: int = 15
+    """... each within this many scans of the previous one."""
+    max_landmarks: int = 300
+    """At most this many landmarks in the filter (its cost grows with their square): beyond,
+    the least recently seen leave it first."""
+    active_window_scans: int = 30
+    """A landmark not seen for this many scans leaves the filter (the EKF corrects with
+    what it has just seen; a corner seen again after longer is matched under a pose that
+    drifted meanwhile, a loop closure nothing verified, and is confirmed anew instead: the
+    landmark map fuses the two, and the pose graph closes the loop) ..."""
+    keep_observations: int = 5
+    """... and is kept in the landmark map if it was seen at least this often."""
+    noise: NoiseModel = field(default_factory=NoiseModel)
+
+    def check(self) -> None:
+        require([
+            (self.localization in ("ekf", "odometry"),
+             "ekf.localization must be ekf or odometry"),
+            (self.gate_chi2 > 0 and self.search_radius_m > 0, "ekf gate values must be > 0"),
+            (self.confirm_observations >= 1, "ekf.confirm_observations must be >= 1"),
+            (self.max_landmarks >= 1, "ekf.max_landmarks must be >= 1"),
+        ])
+
+
+ODOMETRY_NOISE = NoiseModel(trans_per_m=0.1, rot_per_rad=0.2, rot_per_m_deg=5.0,
+                            trans_floor_m=0.01, rot_floor_deg=0.5)
+
+
+@dataclass(frozen=True)
+class CorrelativeConfig:
+    """Its lookup table, the odometry's prior and the window searched."""
+
+    resolution_m: float = 0.05
+    """Cell of the lookup table and step of the translation search (m)."""
+    field_sigma_m: float = 0.05
+    """Spread of a beam's end point about the wall it hit (m)."""
+    outlier_share: float = 0.1
+    """Probability that an end point is not on the submap's walls at all."""
+    effective_points: float = 40.0
+    """A scan's end points count as this many independent ones in the posterior."""
+    odometry: NoiseModel = field(default_factory=lambda: ODOMETRY_NOISE)
+    """The wheel odometry's noise, the prior of each match (its range keys are not used).
+    The defaults are what the benchmark's real robots show between poses under 5 s apart
+    (Kümmerle et al. relations against the raw odometry: 2.5° rms over 0.45 m with 2° of
+    turn, 4.4° over 11°, 4-8% of the distance): five times the EKF's default rotation
+    noise."""
+    learn_odometry: bool = False
+    """Scale the odometry's noise model by what the log shows (OdometryScale): a robot whose
+    odometry is better than the model (a simulator's, a well-calibrated one) is followed
+    more closely, one whose odometry is worse is trusted less. Off: on the built-in worlds
+    with perfect odometry it wins (ATE 0.0014-0.016 m), but on the Radish logs it loses
+    (geometric mean of the ATE ratios to ICP 1.49 against 1.07 without; csail 2.7 m at
+    every level): a SLAM-corrected "perfect" odometry jumps where its own loops closed,
+    and a model learned from the smooth stretches trusts it there too."""
+    odometry_glitch: float = 1e-3
+    """The odometry's prior never falls below this share of its peak (slips, glitches)."""
+    window_sigmas: float = 3.0
+    """The window spans this many of the odometry prior's standard deviations ..."""
+    min_window_m: float = 0.1
+    """... but at least this far either way in translation (metres) ..."""
+    min_window_deg: float = 3.0
+    """... and in rotation (degrees) ..."""
+    max_window_m: float = 1.0
+    """... and at most this far in translation (metres) ..."""
+    max_window_deg: float = 60.0
+    """... and in rotation (degrees)."""
+    voxel_m: float = 0.0
+    """The scan's end points searched are one per square of this side (the first in beam
+    order; 0: all of them): near the robot a scan's end points crowd (a wall 1 m away holds
+    ten times the points of one 10 m away) and add little but time; the ICP that refines
+    the search's pose uses them all."""
+
+    def check(self) -> None:
+        require([
+            (0.005 <= self.resolution_m <= 0.5 and self.field_sigma_m > 0,
+             "match.correlative: resolution_m must be in [0.005, 0.5] m, field_sigma_m > 0"),
+            (0 < self.outlier_share < 1, "match.correlative.outlier_share must be in (0, 1)"),
+            (self.effective_points > 0 and self.window_sigmas > 0,
+             "match.correlative: effective_points and window_sigmas must be > 0"),
+            (0 < self.min_window_m <= self.max_window_m <= 5
+             and 0 < self.min_window_deg <= self.max_window_deg <= 180,
+             "match.correlative: 0 < min_window <= max_window (at most 5 m and 180 deg)"),
+        ])
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Scan matching: each scan's motion, measured against a local map of key scans, is the
+    EKF's control input."""
+
+    enabled: bool = True
+    """False: the EKF predicts from wheel odometry alone."""
+    method: str = "correlative"
+    """"correlative": the best pose of a window around the odometry's guess on the local
+    map's likelihood (see dynslam_cli.localization.correlative), refined by ICP and fused
+    with the odometry by their information. "icp": point-to-line ICP from the odometry's
+    guess, with retries from turned guesses where it fails (the default before the
+    benchmark's raw logs showed the correlative search ahead on every one; best with
+    ``local_map_scans = 8``)."""
+    max_range_m: float = 20.0
+    """Readings beyond this are not matched."""
+    subsample: int = 1
+    """Use every n-th beam of the current scan."""
+    iterations: int = 24
+    """Gauss-Newton steps, over which the pairing gate shrinks from ``max_correspondence_m``
+    to ``min_correspondence_m``: slowly enough for a match from a poor odometry guess to
+    converge (with 12, outdoor and open-hall matches kept a fifth of the odometry's heading
+    error)."""
+    max_correspondence_m: float = 0.5
+    """Pairs farther apart than this (at the first iteration) are ignored ..."""
+    min_correspondence_m: float = 0.1
+    """... shrinking to this by the last iteration."""
+    min_inliers: float = 0.5
+    """Share of points that must pair up for the match to count."""
+    max_rms_m: float = 0.08
+    """... and whose pairs lie at most this far from their lines, RMS (metres)."""
+    prior_scale: float = 1.0
+    """The odometry prior's standard deviations are the motion noise's times this ..."""
+    prior_floor_m: float = 0.0
+    """... and at least this (translation) ..."""
+    prior_floor_deg: float = 5.0
+    """... and this (rotation): wheel odometry of real robots slips in fast turns."""
+    key_distance_m: float = 0.5
+    """A scan becomes a key scan of the local map after this much motion (metres) ..."""
+    key_angle_deg: float = 15.0
+    """... or this much turning (degrees) since the last key scan."""
+    local_map_scans: int = 64
+    """Key scans in the local map each scan is matched against (1: the last key scan):
+    about 32 m of travel at the default spacing, so the walls are held long enough that the
+    long relations of the benchmark logs do not drift."""
+    local_map_cell_m: float = 0.05
+    """The local map keeps one point per square of this side (overlapping key scans)."""
+    normal_neighbours: int = 6
+    """Points whose spread gives a local-map point's normal."""
+    effective_pairs: float = 100.0
+    """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
+    against shares its key scans' errors): for the match's information they count as this
+    many independent pairs, or as themselves where there are fewer."""
+    correlative: CorrelativeConfig = field(default_factory=CorrelativeConfig)
+    """The correlative search (method = "correlative")."""
+
+    def check(self) -> None:
+        require([(self.method in ("icp", "correlative"),
+                  "match.method must be icp or correlative")])
+        self.correlative.check()
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    """Pose-graph and loop-closure parameters (units in the names)."""
+
+    enabled: bool = True
+    """False: the EKF's estimate is the result (no pose graph)."""
+    node_distance_m: float = 0.5
+    """A new graph node after this much motion ..."""
+    node_angle_deg: float = 15.0
+    """... or this much turning."""
+    min_travel_m: float = 8.0
+    """Only nodes at least this far back along the path are loop candidates."""
+    search_radius_m: float = 1.0
+    """Candidates lie within this radius of the current estimate ..."""
+    drift_per_m: float = 0.05
+    """... plus this share of the graph distance between the two nodes (the driving between
+    them, loop closures being shortcuts: see :meth:`LoopCloser.graph_distance`) ..."""
+    max_search_radius_m: float = 6.0
+    """... up to this."""
+    search_angle_deg: float = 10.0
+    """Rotation window of the search (plus 1° per 10 m of graph distance)."""
+    max_search_angle_deg: float = 30.0
+    """... up to this (degrees)."""
+    submap_nodes: int = 4
+    """Scans of this many nodes on each side of the old node make the matched submap."""
+    query_nodes: int = 0
+    """The new scan plus this many earlier nodes' scans are matched."""
+    min_score: float = 0.55
+    """Mean likelihood of the matched points (0–1) for a closure."""
+    min_constraint_ratio: float = 0.1
+    """Scans that constrain their position this much less in one direction than in the other
+    (a corridor's two walls) are not matched."""
+    max_ambiguity_m: float = 1.0
+    """A match that could slide farther than this (standard deviation of the equally good
+    offsets, e.g. along a featureless corridor) is not used."""
+    min_inliers: float = 0.65
+    """The match refined by ICP must pair up this share of the points ..."""
+    max_rms_m: float = 0.05
+    """... at most this far from their lines, RMS (metres)."""
+    attempt_every_m: float = 1.0
+    """Try at most once per this much driven (a closure just made needs no repeat)."""
+    chain_noise_scale: float = 1.5
+    """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
+    agree_chi2: float = 0.1
+    """A closure whose error under the current estimate is below this χ² already agrees
+    with the graph: the optimization waits (for the next disagreeing closure or the end),
+    so revisiting a well-mapped place does not re-solve the whole graph every metre."""
+    edge_sigma_m: float = 0.05
+    """Added (as a standard deviation) to a loop edge's translation uncertainty."""
+    consistent_chi2: float = 11.34
+    """A closure within this χ² of the graph's estimate (99%, 3 dof) is added at once; any
+    other waits for a second closure that agrees with it ..."""
+    pair_window_m: float = 50.0
+    """... made within this much driving after it (the last ``pending_closures`` wait) ..."""
+    pair_min_separation_m: float = 3.0
+    """... but at least this far along (two matches from nearly the same place see the same
+    view, so they share its aliasing: a corridor's doors matched one door off) ..."""
+    pair_tolerance_m: float = 0.15
+    """... closing the loop of the two closures to this distance (metres, plus
+    ``drift_per_m`` times the path between their ends) ..."""
+    pair_tolerance_deg: float = 2.0
+    """... and this angle (degrees) ..."""
+    pair_drift_deg_per_m: float = 0.2
+    """... plus this much per metre of that path (degrees per metre)."""
+    pending_closures: int = 8
+    """Closures waiting for a partner: at most this many, the oldest dropped first."""
+    online_nodes: int = 2000
+    """While the log runs, an optimization moves at most this many nodes: those nearest,
+    through the graph, to the closure just made (the rest hold until the whole graph is
+    optimized at the end), so a closure costs the same late in a long log as early on ..."""
+    online_flops: float = 15e6
+    """... and only as many of them as a factorization of about this many multiplications
+    holds (a place revisited for hours ties its passes together: 2000 nodes of a hall driven
+    for 4 h took a median 2.5 times the factorization work of the 1 h log's)."""
+
+    def check(self) -> None:
+        require([
+            (self.node_distance_m > 0 and self.node_angle_deg > 0,
+             "loop.node_distance_m and node_angle_deg must be > 0"),
+            (self.pending_closures >= 1, "loop.pending_closures must be >= 1"),
+            (self.online_nodes >= 2, "loop.online_nodes must be >= 2"),
+            (self.online_flops > 0, "loop.online_flops must be > 0"),
+        ])
+
+
+@dataclass(frozen=True)
+class ChangeConfig:
+    """Change events (changes.csv): objects that appeared, places vacated, movers' tracks."""
+
+    enabled: bool = True
+    """False: no change events (changes.csv has its header only)."""
+    blob_gap_m: float = 0.2
+    """End points of successive beams closer than this (metres) belong to one object."""
+    track_gate_m: float = 0.5
+    """A blob continues the track whose last blob is nearest, if within this (metres) ..."""
+    track_gap_s: float = 1.0
+    """... and seen at most this long ago (seconds)."""
+    moving_speed_m_s: float = 0.15
+    """A track whose place changes faster than this is moving (m/s; the median of its speed
+    over ``still_s / 2`` at a time, so a standing object seen from another side, whose seen
+    centre jumps once, stays still)."""
+    moving_distance_m: float = 0.5
+    """... and it must also go this far from where it was first seen (metres): further than
+    the seen centre of a standing object wanders."""
+    still_s: float = 3.0
+    """An object counts as standing (appeared, or vacated from S) only if it was seen
+    standing for this long (seconds; appeared: in at least half the scans of that time): a
+    walker stands nowhere that long."""
+    merge_distance_m: float = 0.3
+    """Stationary tracks whose places lie this close (metres) are one object."""
+    join_gap_s: float = 2.0
+    """Two moving tracks are one mover's if the second begins at most this long after the
+    first was last seen (seconds; or while it is still seen: a walker's two legs) ..."""
+    walker_speed_m_s: float = 2.0
+    """... no farther from the first's last place than ``track_gate_m`` plus this speed
+    (m/s) times the time between: a person who stops, or is hidden a moment, and walks on
+    is one track."""
+    min_scans: int = 5
+    """An event needs evidence from at least this many scans."""
+    min_area_m2: float = 0.02
+    """A vacated place needs at least this many square metres of cells gone Free."""
+    max_object_m2: float = 4.0
+    """An object that appeared or vacated its place is at most this large (square metres of
+    its footprint: a pallet, a table, a parked cart): beyond, it is the map disagreeing
+    with itself (a wing drawn twice, a wall seen through a doorway), not reported."""
+
+    def check(self) -> None:
+        require([
+            (min(self.blob_gap_m, self.track_gate_m, self.merge_distance_m) > 0,
+             "changes: blob_gap_m, track_gate_m and merge_distance_m must be > 0"),
+            (min(self.track_gap_s, self.still_s, self.join_gap_s, self.walker_speed_m_s) >= 0
+             and self.moving_speed_m_s > 0,
+             "changes: track_gap_s, still_s, join_gap_s and walker_speed_m_s must be >= 0, "
+             "moving_speed_m_s > 0"),
+            (self.min_scans >= 1 and self.min_area_m2 >= 0 and self.max_object_m2 > 0,
+             "changes: min_scans must be >= 1, min_area_m2 >= 0, max_object_m2 > 0"),
+        ])
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """A recording of the run for Foxglove and RViz (``--record``; see
+    dynslam_formats.recording): an MCAP file in the output folder or at a path."""
+
+    file: str | None = None
+    """The recording, ending in .mcap (``--record``): a bare file name is written in the
+    output folder, a path (``~/runs/today.mcap``) there, atomically; unset: no recording."""
+    period_s: float = 5.0
+    """The maps, paths and landmarks are sent at most once every this many seconds of log
+    time, when they changed, and once at the end (``--record-period``)."""
+
+    def check(self) -> None:
+        require([
+            (self.period_s > 0, "record.period_s must be > 0"),
+            (self.file is None or (self.file.endswith(".mcap") and len(Path(self.file).name) > 5),
+             f"record.file must be a file name or path ending in .mcap (a bare name is written "
+             f"in the output folder), not {self.file!r}"),
+        ])
+
