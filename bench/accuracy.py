@@ -36,7 +36,7 @@ from dynslam_cli.evaluate import (  # noqa: E402
     score_events,
     score_run,
 )
-from dynslam_cli.pipeline import snapshots_at  # noqa: E402
+from dynslam_cli.job import snapshots_at  # noqa: E402
 from dynslam_cli.simulate import (  # noqa: E402
     WORLD_NAMES,
     LaserModel,

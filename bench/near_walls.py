@@ -19,8 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from dynslam_cli.config import Config
 from dynslam_cli.evaluate import MapThresholds, score_events
+from dynslam_cli.job import snapshots_at
 from dynslam_cli.localization.cornerslam import EkfConfig
-from dynslam_cli.pipeline import snapshots_at
 from dynslam_cli.simulate import (
     Box,
     LaserModel,

@@ -49,7 +49,7 @@ class Job:
     format_name: str | None = None
     snapshots: float | None = None
     read_ahead: bool = True
-    """Read and scan-match in a second process (see dynslam_cli.localization.frontend); off when the
+    """Read and scan-match in a second process (see dynslam_cli.readahead); off when the
     batch already runs one worker per core."""
     redo: str | None = None
     """Why a complete earlier output is made again (it was made with other settings)."""

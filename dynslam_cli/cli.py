@@ -307,7 +307,7 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
 
 def _progress_bar() -> Any:
     """tqdm, without its monitor thread: a process with a second thread does not fork a
-    read-ahead process (dynslam_cli.localization.frontend.can_fork)."""
+    read-ahead process (dynslam_cli.readahead.can_fork)."""
     from tqdm import tqdm
 
     tqdm.monitor_interval = 0

@@ -1,4 +1,4 @@
-"""SE(2) helpers: angle wrapping, composition, inversion, interpolation."""
+"""SE(2) helpers: angle wrapping, composition, inversion, interpolation, key poses."""
 
 from __future__ import annotations
 
@@ -34,6 +34,14 @@ def inverse(a: Pose2D) -> Pose2D:
 def relative(a: Pose2D, b: Pose2D) -> Pose2D:
     """⊖a ⊕ b: pose b expressed in the frame of pose a."""
     return compose(inverse(a), b)
+
+
+def moved_far(a: Pose2D, b: Pose2D, distance_m: float, angle_rad: float) -> bool:
+    """Whether pose b lies at least ``distance_m`` from pose a or is turned at least
+    ``angle_rad`` from it: the rule by which a new key scan, graph node or path pose is
+    taken."""
+    d = relative(a, b)
+    return math.hypot(d.x, d.y) >= distance_m or abs(d.theta) >= angle_rad
 
 
 def interpolate(a: Pose2D, b: Pose2D, f: float) -> Pose2D:

@@ -1,7 +1,8 @@
 """One log through the whole tool: read, run the pipeline, write the output folder
 atomically; and an output folder scored. Used by ``dynslam process`` (with a progress bar),
 ``dynslam evaluate`` and ``dynslam batch`` (in worker processes or on a Dask cluster), so
-all honour the same output contract and score it alike."""
+all honour the same output contract and score it alike; and a run that takes the maps at
+given times, for the benches that score change detection."""
 
 from __future__ import annotations
 
@@ -12,16 +13,19 @@ import statistics
 import sys
 import time
 from array import array
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
-from dynslam_cli.localization.frontend import ForkedFrontEnd, open_front_end
 from dynslam_cli.mapping.changes import KINDS
-from dynslam_cli.pipeline import run
+from dynslam_cli.mapping.grid import OccupancyMap
+from dynslam_cli.pipeline import DynamicSlam, run
+from dynslam_cli.readahead import ForkedFrontEnd, open_front_end
+from dynslam_cli.result import SlamResult
+from dynslam_cli.types import Scan
 from dynslam_formats.base import COMPRESSED_SUFFIXES
 
 LOG_SUFFIXES = (*COMPRESSED_SUFFIXES, ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
@@ -50,7 +54,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
     ``on_progress(bytes_done, bytes_total, scans)`` is called every few scans, then
     ``on_phase(what, done, total)`` through the final work. ``read_ahead``: read
-    and measure the scans in a second process (on Linux; see dynslam_cli.localization.frontend)."""
+    and measure the scans in a second process (on Linux; see dynslam_cli.readahead)."""
     from dynslam_formats import open_log
     from dynslam_formats.outdir import (
         OUTPUT_FILES,
@@ -225,3 +229,21 @@ def _scan_times(ticks: array) -> dict[str, float | None]:
              "last": dt[len(dt) - k:]}
     return {f"{name}_10pct_median": round(statistics.median(part), 3) if k else None
             for name, part in parts.items()}
+
+
+def snapshots_at(scans: Iterable[Scan], config: Config, times: list[float]
+                 ) -> tuple[SlamResult, list[tuple[float, OccupancyMap, OccupancyMap]]]:
+    """Run the pipeline and take (time, S, D) just before the first scan at or after each of
+    ``times``, and at the end (for dynslam_cli.evaluate.score_events: the benches)."""
+    slam = DynamicSlam(config)
+    pending = sorted(times)
+    snaps: list[tuple[float, OccupancyMap, OccupancyMap]] = []
+    last = 0.0
+    for scan in scans:
+        while pending and scan.stamp >= pending[0]:
+            snaps.append((pending.pop(0), slam.grids.snapshot("static").dense(),
+                          slam.grids.snapshot("dynamic").dense()))
+        slam.step(scan)
+        last = scan.stamp
+    snaps.append((last + 1.0, slam.grids.snapshot("static"), slam.grids.snapshot("dynamic")))
+    return slam.result(), snaps

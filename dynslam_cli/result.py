@@ -4,11 +4,15 @@ trajectory, the change events and the counts for the summary."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dynslam_cli.mapping.changes import ChangeEvent
+from dynslam_cli.mapping.changes import ChangeEvent, change_events
 from dynslam_cli.mapping.grid import OccupancyMap
+
+if TYPE_CHECKING:
+    from dynslam_cli.mapping.dynamic import DynamicMapper
 
 
 @dataclass(frozen=True)
@@ -40,3 +44,25 @@ class SlamResult:
     """What the final grids hold: tiles, cells stored and seen, bytes per cell seen."""
     changes: list[ChangeEvent] = field(default_factory=list)
     """What changed in the world during the run (final results only)."""
+
+    @classmethod
+    def of(cls, mapper: DynamicMapper, trajectory: np.ndarray, landmarks: list[Landmark],
+           localization: dict[str, int], final: bool = False) -> SlamResult:
+        """The result of the maps of ``mapper``, with the change events found in its
+        evidence if ``final`` (each named by the landmark it stands on, if any)."""
+        changes = []
+        if final and mapper.changes is not None:
+            changes = change_events(mapper.changes, [(lm.id, lm.x, lm.y) for lm in landmarks])
+        return cls(static=mapper.grids.snapshot("static"),
+                   dynamic=mapper.grids.snapshot("dynamic"), trajectory=trajectory,
+                   landmarks=landmarks, localization=localization,
+                   grid_memory=mapper.grids.memory(), changes=changes)
+
+
+def landmarks_of(corners: list[tuple[int, bool, int, float, float, np.ndarray]],
+                 classes: list[str]) -> list[Landmark]:
+    """The landmark map's rows from the corners (id, convex, observations, x, y, 2×2
+    covariance; map frame) and their classes by Table 3."""
+    return [Landmark(i, x, y, "convex" if convex else "concave", c, seen,
+                     float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
+            for (i, convex, seen, x, y, cov), c in zip(corners, classes, strict=True)]

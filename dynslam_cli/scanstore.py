@@ -4,11 +4,15 @@ trajectory at the end (see dynslam_cli.pipeline)."""
 from __future__ import annotations
 
 from array import array
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dynslam_cli.types import Pose2D, Scan
+
+if TYPE_CHECKING:
+    from dynslam_cli.mapping.dynamic import DynamicMapper
 
 
 class ScanStore:
@@ -102,3 +106,15 @@ class ScanStore:
             angles, laser = self._shapes[shape]
             yield Scan(stamp, self._ranges(i, len(angles)).astype(np.float64), angles,
                        max_range, Pose2D(), laser)
+
+
+def remap(mapper: DynamicMapper, poses: np.ndarray, store: ScanStore,
+          say: Callable[[str, int, int], None]) -> None:
+    """The stored scans integrated into ``mapper`` in order, each at its row of ``poses``
+    (N×3: x, y, θ in the map frame); ``say("rebuilding the maps", done, total)`` every 256
+    scans."""
+    n = len(poses)
+    for i, ((x, y, th), scan) in enumerate(zip(poses, store.scans(), strict=True)):
+        if i % 256 == 0:
+            say("rebuilding the maps", i, n)
+        mapper.integrate(Pose2D(float(x), float(y), float(th)), scan)

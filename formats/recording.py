@@ -65,7 +65,7 @@ import numpy as np
 
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
-from dynslam_cli.geometry import compose, inverse, relative
+from dynslam_cli.geometry import compose, inverse, moved_far
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap, probability
 from dynslam_cli.pipeline import DynamicSlam
@@ -262,9 +262,8 @@ class Recording:
         self._send("/scan", stamp, self._laser_scan(scan))
         self._odometry.extend((stamp, odom.x, odom.y, odom.theta))
         self._has_odometry = self._has_odometry or scan.has_odometry
-        moved = None if self._key_pose is None else relative(self._key_pose, pose)
-        if moved is None or (math.hypot(moved.x, moved.y) >= self._step_m
-                             or abs(moved.theta) >= self._step_rad):
+        if self._key_pose is None or moved_far(self._key_pose, pose, self._step_m,
+                                               self._step_rad):
             self._keys.append(len(self._odometry) // 4 - 1)
             self._key_pose = pose
             if len(self._keys) > PATH_MAX_POSES:

@@ -141,7 +141,7 @@ def _score(world: str, tmp_path, noise: float, config: Config):
         score_events,
         score_run,
     )
-    from dynslam_cli.pipeline import snapshots_at
+    from dynslam_cli.job import snapshots_at
 
     source, reader, truth = _simulated(world, tmp_path, noise)
     times = [e["time"] for e in truth["events"]]

@@ -11,7 +11,7 @@ import pytest
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import InputError
-from dynslam_cli.localization.frontend import ForkedFrontEnd, FrontEnd, can_fork
+from dynslam_cli.readahead import ForkedFrontEnd, FrontEnd, can_fork
 from dynslam_formats import ReaderOptions, open_log
 
 from .conftest import SAMPLES, flaser

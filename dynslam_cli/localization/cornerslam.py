@@ -12,7 +12,7 @@ EKF, closes long loops: see dynslam_cli.localization.loops) and the state never 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,6 +88,26 @@ class CornerSlam:
     def pose(self) -> Pose2D:
         x = self.ekf.x
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
+
+    def step(self, scan_index: int, increment: Pose2D, cov: np.ndarray | None,
+             has_odometry: bool, observations: list[tuple[np.ndarray, bool]],
+             classify: Callable[[np.ndarray], list[str]]) -> Pose2D:
+        """Sec. 4 for scan number ``scan_index``: predict from the motion ``increment``
+        (covariance ``cov``, None: the noise model's), associate the corners seen,
+        classify the landmarks seen by Table 3 (``classify``: their positions, N×2 in this
+        filter's frame, to "static" or "dynamic"), correct with the static ones, start
+        landmarks from the corners left, let go of those not seen for long; returns the
+        corrected pose."""
+        self.scan_index = scan_index
+        self.predict(increment, cov, has_odometry)
+        pairs, not_new = self.associate(observations)
+        seen = [i for i, _ in pairs]  # only these can correct the pose: classify them
+        if seen:
+            self.classify(seen, classify(self.landmark_positions()[seen]))
+        self.correct(pairs)
+        self.add_new(observations, not_new)
+        self.prune()
+        return self.pose
 
     def predict(self, increment: Pose2D, cov: np.ndarray | None, has_odometry: bool = True
                 ) -> None:
@@ -216,6 +236,31 @@ class CornerSlam:
                                       t.observations, t.last_seen,
                                       self.ekf.cov[j:j + 2, j:j + 2].copy()))
         return out
+
+    def landmark_map(self, correction: Callable[[int], Pose2D] | None = None
+                     ) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
+        """Every landmark confirmed (those let go of included), one per corner
+        (:func:`one_per_corner`): (id, convex, observations, x, y, 2×2 covariance), each
+        moved by ``correction`` (a scan number → the correction of this filter's frame at
+        that scan, the pose graph's; None: none) at the scan it was last seen."""
+        records = self.landmark_records()
+        if not records:
+            return []
+        xy = np.array([[r.x, r.y] for r in records])
+        angles = np.zeros(len(records))
+        if correction is not None:
+            for k, r in enumerate(records):
+                corr = correction(r.last_seen)
+                p = compose(corr, Pose2D(xy[k, 0], xy[k, 1], 0.0))
+                xy[k] = (p.x, p.y)
+                angles[k] = corr.theta
+        covs = []
+        for r, a in zip(records, angles, strict=True):
+            c, s = math.cos(a), math.sin(a)
+            rot = np.array([[c, -s], [s, c]])
+            covs.append(rot @ r.cov @ rot.T)
+        return one_per_corner([(r.id, r.convex, r.observations) for r in records], xy,
+                              np.array(covs), self.config.gate_chi2)
 
     def landmark_positions(self) -> np.ndarray:
         return self.ekf.x[3:].reshape(-1, 2)

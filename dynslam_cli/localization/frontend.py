@@ -1,44 +1,24 @@
-"""The front end: the log's scans, each with what the filter measures from it alone (the
-motion since the previous scan and the corners seen), read and measured ahead of the filter
-in a second process.
+"""The front end: what the filter measures from each scan alone, the motion since the
+previous scan and the corners seen.
 
-The motion of a scan is the wheel odometry's, or, where the scan matches the key scan well,
-the scan-matched one (:class:`dynslam_cli.localization.scanmatch.ScanMatcher`); the corners are the
-landmark observations (:func:`dynslam_cli.localization.cornerslam.observe_corners`). Reading the log
-and measuring depend on nothing the filter, the pose graph or the maps compute, so on Linux
-(:func:`can_fork`) :class:`ForkedFrontEnd` does both in a forked child process on another
-core and sends the scans with their measurements through a pipe, in log order, a batch at a
-time; this process runs the rest. The results are those of one process, byte for byte. An
-error in the child (a malformed line, say) is raised here once the scans before it have been
-processed, as it would be without the child. :class:`FrontEnd` does the same work in this
-process.
+The motion of a scan is the wheel odometry's, or, where the scan matches the local map well,
+the scan-matched one (:class:`dynslam_cli.localization.scanmatch.ScanMatcher`); the corners
+are the landmark observations (:func:`dynslam_cli.localization.cornerslam.observe_corners`).
+Measuring depends on nothing the filter, the pose graph or the maps compute, so it can run
+ahead of them in another process (dynslam_cli.readahead).
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import pickle
-import signal
-import sys
-import traceback
-from collections.abc import Iterator
-from typing import TYPE_CHECKING, BinaryIO, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from dynslam_cli.config import Config
-from dynslam_cli.errors import DynslamError
 from dynslam_cli.geometry import relative
 from dynslam_cli.localization.cornerslam import observe_corners
 from dynslam_cli.localization.scanmatch import ScanMatcher
+from dynslam_cli.sections import CornerConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
-
-if TYPE_CHECKING:
-    from dynslam_formats.base import LogReader, ReadStats, Source
-
-BATCH = 16  # scans per message from the child
-PIPE_BYTES = 1 << 20
 
 
 class Motion(NamedTuple):
@@ -66,15 +46,16 @@ class Measurement(NamedTuple):
     corners: list[tuple[np.ndarray, bool]]
 
 
-class Measure:
-    """Each scan's :class:`Measurement`, from the scans in log order."""
+class ScanMeasurer:
+    """Each scan's :class:`Measurement`, from the scans in log order: the motion scan-matched
+    by ``match`` (None: the wheel odometry's), the corners detected by ``corners`` (None:
+    none, as a filter that corrects with none needs)."""
 
-    def __init__(self, config: Config) -> None:
-        ekf = config.ekf.localization == "ekf"  # else the filter uses neither
-        self._matcher = (ScanMatcher(config.match, config.ekf.noise)
-                         if ekf and config.match.enabled else None)
+    def __init__(self, match: MatchConfig | None, motion_noise: NoiseModel,
+                 corners: CornerConfig | None) -> None:
+        self._matcher = ScanMatcher(match, motion_noise) if match is not None else None
         self._last_odom: Pose2D | None = None
-        self._corners = config.corners if ekf else None
+        self._corners = corners
 
     def __call__(self, scan: Scan) -> Measurement:
         corners = observe_corners(scan, self._corners) if self._corners is not None else []
@@ -85,182 +66,3 @@ class Measure:
             return Motion(*self._matcher.increment(scan))
         last, self._last_odom = self._last_odom, scan.odom
         return Motion(relative(last, scan.odom) if last is not None else Pose2D(), "odometry")
-
-
-class FrontEnd:
-    """The scans of ``reader`` with their measurements, in this process. Iterate
-    :meth:`scans`; :meth:`measurement` gives the measurement of the scan last yielded,
-    :meth:`progress` the bytes read so far and ``stats`` the reader's counts."""
-
-    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
-        self._reader = reader
-        self._source = source
-        self._measure = Measure(config)
-        self._laser = config.laser
-        self._scan: Scan | None = None
-        self._measurement: Measurement | None = None
-
-    @property
-    def stats(self) -> ReadStats:
-        return self._reader.stats
-
-    def scans(self) -> Iterator[Scan]:
-        for read in self._reader.scans():
-            scan = self._laser.limit(read)
-            self._scan, self._measurement = scan, self._measure(scan)
-            yield scan
-
-    def measurement(self, scan: Scan) -> Measurement:
-        assert scan is self._scan and self._measurement is not None, "not the last scan"
-        return self._measurement
-
-    def progress(self) -> tuple[int, int]:
-        return self._source.progress()
-
-    def close(self) -> None:
-        pass
-
-
-class ForkedFrontEnd:
-    """:class:`FrontEnd` in a forked child process, running ahead (same interface). Call
-    :meth:`close` when done: it stops the child if it is still running."""
-
-    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
-        self.stats: ReadStats = reader.stats
-        self._progress = (0, 0)
-        self._scans: list[Scan] = []
-        self._measurements: list[Measurement] = []
-        self._next = 0
-        read_end, write_end = os.pipe()
-        _widen(write_end)
-        try:
-            self._pid = os.fork()
-        except OSError:
-            os.close(read_end)
-            os.close(write_end)
-            raise
-        self._running = True
-        if self._pid == 0:  # the child: never returns
-            os.close(read_end)
-            _child(FrontEnd(reader, source, config), write_end)
-        os.close(write_end)
-        self._pipe: BinaryIO | None = os.fdopen(read_end, "rb")
-
-    def scans(self) -> Iterator[Scan]:
-        assert self._pipe is not None
-        while True:
-            try:
-                kind, payload = pickle.load(self._pipe)
-            except EOFError:
-                raise RuntimeError(f"the front-end process ended unexpectedly "
-                                   f"({self._reap()})") from None
-            if kind == "scans":
-                scans, self._measurements, self._progress = payload
-                self._scans = scans
-                for self._next, scan in enumerate(scans):
-                    yield scan
-            elif kind == "end":
-                self.stats = payload
-                return
-            else:
-                raise payload
-
-    def measurement(self, scan: Scan) -> Measurement:
-        assert scan is self._scans[self._next], "not the last scan"
-        return self._measurements[self._next]
-
-    def progress(self) -> tuple[int, int]:
-        return self._progress
-
-    def close(self) -> None:
-        if self._pipe is not None:
-            self._pipe.close()
-            self._pipe = None
-        if self._running:
-            with contextlib.suppress(ProcessLookupError):  # stopped, if it still runs
-                os.kill(self._pid, signal.SIGKILL)
-            self._reap()
-
-    def _reap(self) -> str:
-        """Wait for the child to end (once: its process id may be reused after)."""
-        self._running = False
-        _, status = os.waitpid(self._pid, 0)
-        return f"wait status {status}"
-
-
-def _child(front: FrontEnd, fd: int) -> None:
-    """Run the front end, sending batches of (scans, measurements, progress), then ("end",
-    stats) or ("error", exception); exit without running the parent's clean-up."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    code = 0
-    scans: list[Scan] = []
-    measurements: list[Measurement] = []
-    try:
-        with os.fdopen(fd, "wb") as pipe:
-            try:
-                for scan in front.scans():
-                    scans.append(scan)
-                    measurements.append(front.measurement(scan))
-                    if len(scans) == BATCH:
-                        _send(pipe, "scans", (scans, measurements, front.progress()))
-                        scans, measurements = [], []
-                end: tuple[str, object] = ("end", front.stats)
-            except Exception as e:
-                end = ("error", _picklable(e))
-            if scans:  # the scans before the end (or the error)
-                _send(pipe, "scans", (scans, measurements, front.progress()))
-            _send(pipe, *end)
-    except BaseException:  # the parent has gone (broken pipe) or the child was stopped
-        code = 1
-    finally:
-        os._exit(code)
-
-
-def _widen(fd: int) -> None:
-    """Let the pipe hold ~300 scans (1 MiB; 64 KiB by default): the child can then run
-    ahead through the stretches where this process is slow (loop closures) and need not
-    fall behind where it is fast. Where pipes cannot be resized, the default it is."""
-    with contextlib.suppress(ImportError, AttributeError, OSError):
-        import fcntl  # (POSIX only)
-
-        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)  # (Linux only)
-
-
-def _send(pipe: BinaryIO, kind: str, payload: object) -> None:
-    pickle.dump((kind, payload), pipe, protocol=pickle.HIGHEST_PROTOCOL)
-    pipe.flush()
-
-
-def _picklable(e: Exception) -> Exception:
-    """The exception, cut from its chain (the cause, a library's own exception, may not
-    pickle); a RuntimeError with its text if it still does not pickle. An unexpected error
-    (not the user's input: see dynslam_cli.errors) gets the child's traceback as a note."""
-    where = "".join(traceback.format_exception(e))
-    e.__cause__ = e.__context__ = e.__traceback__ = None
-    try:
-        pickle.loads(pickle.dumps(e))
-    except Exception:
-        e = RuntimeError(f"{type(e).__name__}: {e}")
-    if not isinstance(e, DynslamError):
-        e.add_note("in the front-end process:\n" + where)
-    return e
-
-
-def open_front_end(reader: LogReader, source: Source, config: Config, read_ahead: bool = True
-                   ) -> FrontEnd | ForkedFrontEnd:
-    """A :class:`ForkedFrontEnd` if ``read_ahead`` and it can be used, else a
-    :class:`FrontEnd`."""
-    if read_ahead and can_fork():
-        with contextlib.suppress(OSError):  # no process to spare (a ulimit): work here
-            return ForkedFrontEnd(reader, source, config)
-    return FrontEnd(reader, source, config)
-
-
-def can_fork() -> bool:
-    """Whether :class:`ForkedFrontEnd` may be used: on Linux (macOS system libraries are not
-    safe to use in a forked child; Windows cannot fork), in a process that runs no other
-    Python thread (a Dask worker's, say) that the child would inherit in mid-work."""
-    if not sys.platform.startswith("linux"):
-        return False
-    threading = sys.modules.get("threading")
-    return threading is None or threading.active_count() == 1

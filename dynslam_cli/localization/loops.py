@@ -26,19 +26,27 @@ from __future__ import annotations
 
 import bisect
 import math
+from array import array
 from collections import OrderedDict, deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from dynslam_cli.geometry import compose, inverse, relative, transform_points
+from dynslam_cli.geometry import (
+    compose,
+    inverse,
+    moved_far,
+    relative,
+    transform_points,
+    wrap_angles,
+)
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.ekf import motion_std
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
-from dynslam_cli.localization.scanmatch import icp
+from dynslam_cli.localization.scanmatch import icp, scan_points
 from dynslam_cli.sections import LoopConfig, MatchConfig, NoiseModel
-from dynslam_cli.types import Pose2D
+from dynslam_cli.types import Pose2D, Scan
 
 FIELD_RES_M = 0.05
 FIELD_SIGMA_M = 0.08
@@ -259,13 +267,13 @@ class LoopCloser:
         self._links = Links()  # the graph, for its distances
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
+        self._scan_nodes = array("i")  # per scan placed: its node ...
+        self._scan_offsets = array("d")  # ... and its pose in that node's EKF frame
 
     def wants_node(self, local_pose: Pose2D) -> bool:
-        if not self.local_poses:
-            return True
-        d = relative(self.local_poses[-1], local_pose)
-        return (math.hypot(d.x, d.y) >= self.cfg.node_distance_m
-                or abs(d.theta) >= math.radians(self.cfg.node_angle_deg))
+        return not self.local_poses or moved_far(self.local_poses[-1], local_pose,
+                                                 self.cfg.node_distance_m,
+                                                 math.radians(self.cfg.node_angle_deg))
 
     def add_node(self, local_pose: Pose2D, points: np.ndarray) -> bool:
         """A new node at the EKF's pose, chained to the previous node; then a loop closure
@@ -468,3 +476,46 @@ class LoopCloser:
     def correction(self, node: int) -> Pose2D:
         """The graph's correction of the EKF frame at ``node``: map pose ⊖ EKF pose."""
         return compose(self.pose(node), inverse(self.local_poses[node]))
+
+    def to_map(self, points: np.ndarray) -> np.ndarray:
+        """EKF-frame positions (N×2) into the map frame by the last node's correction."""
+        if not self.local_poses or len(points) == 0:
+            return points
+        return transform_points(self.correction(len(self.local_poses) - 1), points)
+
+    def counts(self) -> dict[str, int]:
+        """The graph's nodes, the closures tried and made (for ``summary.json``)."""
+        return {"graph_nodes": len(self.local_poses), "loop_closure_attempts": self.attempts,
+                "loop_closures": self.closures}
+
+    def place(self, local_pose: Pose2D, scan: Scan) -> Pose2D:
+        """A scan at the EKF's pose ``local_pose``: a new node (and a loop closure attempt)
+        where the robot has moved far enough from the last, else kept as an offset from the
+        last node; returns the scan's pose in the map frame (the node's, corrected)."""
+        if self.wants_node(local_pose):
+            self.add_node(local_pose, scan_points(scan, self.match.max_range_m,
+                                                  self.match.subsample))
+        node = len(self.local_poses) - 1
+        offset = relative(self.local_poses[node], local_pose)
+        self._scan_nodes.append(node)
+        self._scan_offsets.extend((offset.x, offset.y, offset.theta))
+        return compose(self.pose(node), offset)
+
+    def scan_correction(self, scan: int) -> Pose2D:
+        """The graph's correction of the EKF frame at the node of scan number ``scan`` (the
+        last scan placed, if it is later)."""
+        return self.correction(self._scan_nodes[min(scan, len(self._scan_nodes) - 1)])
+
+    def estimates(self, scans: np.ndarray | None = None) -> np.ndarray:
+        """The current pose estimates (N×3, map frame) of the scans placed, by number
+        (default: all): each from its node's pose now and its offset from the node, so a
+        loop closure moves the scans before it too."""
+        node = np.asarray(self._scan_nodes, dtype=np.int64)
+        off = np.asarray(self._scan_offsets, dtype=np.float64).reshape(-1, 3)
+        if scans is not None:
+            node, off = node[scans], off[scans]
+        base = self.graph.poses[node]
+        c, s = np.cos(base[:, 2]), np.sin(base[:, 2])
+        return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
+                                base[:, 1] + s * off[:, 0] + c * off[:, 1],
+                                wrap_angles(base[:, 2] + off[:, 2])))

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynslam_cli.geometry import compose, relative, transform_points
+from dynslam_cli.geometry import compose, moved_far, relative, transform_points
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
@@ -248,14 +248,11 @@ class ScanMatcher:
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
-        if key is None or self._moved_far(relative(key, pose)):
+        if key is None or moved_far(key, pose, cfg.key_distance_m,
+                                    math.radians(cfg.key_angle_deg)):
             self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m))
             self._key_pose = pose
         return inc, source, cov
-
-    def _moved_far(self, d: Pose2D) -> bool:
-        return (math.hypot(d.x, d.y) > self.cfg.key_distance_m
-                or abs(d.theta) > math.radians(self.cfg.key_angle_deg))
 
     def _prior_sigma(self, scan: Scan, wheel: Pose2D) -> tuple[float, float, float]:
         """Standard deviations (x, y, θ) of the odometry's guess."""
