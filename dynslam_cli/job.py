@@ -26,7 +26,7 @@ from dynslam_cli.pipeline import DynamicSlam, run
 from dynslam_cli.readahead import ForkedFrontEnd, open_front_end
 from dynslam_cli.result import SlamResult
 from dynslam_cli.types import Scan
-from dynslam_formats.base import COMPRESSED_SUFFIXES
+from dynslam_formats.source import COMPRESSED_SUFFIXES
 
 LOG_SUFFIXES = (*COMPRESSED_SUFFIXES, ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
 

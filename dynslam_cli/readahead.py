@@ -28,7 +28,8 @@ from dynslam_cli.pipeline import measurer
 from dynslam_cli.types import Scan
 
 if TYPE_CHECKING:
-    from dynslam_formats.base import LogReader, ReadStats, Source
+    from dynslam_formats.base import LogReader, ReadStats
+    from dynslam_formats.source import Source
 
 BATCH = 16  # scans per message from the child
 PIPE_BYTES = 1 << 20

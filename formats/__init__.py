@@ -15,14 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from dynslam_cli.errors import InputError, SeveralTopicsError
-from dynslam_formats.base import (
-    ROS_ONLY_OPTIONS,
-    LogReader,
-    ReaderOptions,
-    ReadStats,
-    Source,
-    guarded,
-)
+from dynslam_formats.base import ROS_ONLY_OPTIONS, LogReader, ReaderOptions, ReadStats
+from dynslam_formats.guard import guarded
+from dynslam_formats.source import Source
 
 __all__ = ["READERS", "LogReader", "ReadStats", "ReaderEntry", "ReaderOptions", "Source",
            "all_readers", "describe_log", "open_log"]

@@ -54,14 +54,9 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, relative
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import (
-    OdometryBuffer,
-    ReaderOptions,
-    ReadStats,
-    Source,
-    text_lines,
-    warn_ros_only_options,
-)
+from dynslam_formats.base import ReaderOptions, ReadStats, warn_ros_only_options
+from dynslam_formats.odometry import OdometryBuffer
+from dynslam_formats.source import Source, text_lines
 
 RECORD_NAMES = ("PARAM", "SYNC", "ODOM", "TRUEPOS", "FLASER", "RLASER", "LASER3", "LASER4",
                 "RAWLASER1", "RAWLASER2", "RAWLASER3", "RAWLASER4", "ROBOTLASER1",

@@ -15,15 +15,10 @@ from typing import Any, ClassVar
 
 from dynslam_cli.errors import InputError, printable
 from dynslam_cli.types import Scan
-from dynslam_formats.base import (
-    ReaderOptions,
-    ReadStats,
-    RecordWalk,
-    Source,
-    container_errors,
-    first_line,
-)
+from dynslam_formats.base import ReaderOptions, ReadStats, RecordWalk
+from dynslam_formats.damage import container_errors, first_line
 from dynslam_formats.ros import MCAP_MAGIC, log_scans, tally, typestore_of
+from dynslam_formats.source import Source
 
 DEFINITION_ENCODINGS = ("ros1msg", "ros2msg")
 

@@ -21,7 +21,7 @@ device index, type, subtype or beam count that is not a whole number (or a count
 time stamp that is not finite is a counted skip; laser records of other types or subtypes
 are counted and ignored, as are ``--topic`` and ``--odom-topic`` (ROS only). Scans with a
 non-finite resolution, minimum angle or max range, or a zero resolution, are counted skips
-(the common guard, ``dynslam_formats.base``); a negative resolution or min > max is a sweep
+(the common guard, ``dynslam_formats.guard``); a negative resolution or min > max is a sweep
 in the other direction and is kept.
 """
 
@@ -35,15 +35,10 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import (
-    MAX_BEAMS,
-    OdometryBuffer,
-    ReaderOptions,
-    ReadStats,
-    Source,
-    text_lines,
-    warn_ros_only_options,
-)
+from dynslam_formats.base import ReaderOptions, ReadStats, warn_ros_only_options
+from dynslam_formats.guard import MAX_BEAMS
+from dynslam_formats.odometry import OdometryBuffer
+from dynslam_formats.source import Source, text_lines
 
 VERSIONS = ("0.0", "0.2", "0.3")
 

@@ -71,7 +71,7 @@ from dynslam_cli.mapping.grid import OccupancyMap, probability
 from dynslam_cli.pipeline import DynamicSlam
 from dynslam_cli.result import Landmark, SlamResult
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import beam_geometry
+from dynslam_formats.guard import beam_geometry
 from dynslam_formats.mapfile import class_masks
 from dynslam_formats.picture import CHANGE_RGB, LANDMARK_RGB
 
@@ -255,7 +255,7 @@ class Recording:
         links = ([(MAP_FRAME, ODOM_FRAME, compose(pose, inverse(odom))),
                   (ODOM_FRAME, BASE_FRAME, odom)] if scan.has_odometry
                  else [(MAP_FRAME, BASE_FRAME, pose)])  # (no odom frame: none in the log)
-        if scan.laser != self._mount:  # (a mount held steady: see base.SteadyMount)
+        if scan.laser != self._mount:  # (a mount held steady: see guard.SteadyMount)
             self._mount = scan.laser
             links.append((BASE_FRAME, LASER_FRAME, scan.laser))
         self._send("/tf", stamp, self._tf_message(stamp, links))

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from dynslam_formats.base import read_text_lines
+from dynslam_formats.source import read_text_lines
 
 
 def read_relations(path: Path | str) -> np.ndarray:

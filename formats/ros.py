@@ -25,7 +25,7 @@ naming the file and its kind. A LaserScan whose range count contradicts
 its angles (``angle_min + (n − 1)·angle_increment`` farther than one increment and 1% of the
 span from ``angle_max``) is a counted skip: which of the two is wrong cannot be told. Non-finite
 angles or stamps, a zero increment and a bad ``range_max`` are skipped by the common guard
-(``dynslam_formats.base``), which also counts stamps that go backwards or repeat (the scans
+(``dynslam_formats.guard``), which also counts stamps that go backwards or repeat (the scans
 are kept in log order).
 """
 
@@ -40,15 +40,10 @@ import numpy as np
 
 from dynslam_cli.errors import InputError, SeveralTopicsError
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import (
-    OdometryBuffer,
-    ReaderOptions,
-    ReadStats,
-    RecordWalk,
-    Source,
-    container_errors,
-    first_line,
-)
+from dynslam_formats.base import ReaderOptions, ReadStats, RecordWalk
+from dynslam_formats.damage import container_errors, first_line
+from dynslam_formats.odometry import OdometryBuffer
+from dynslam_formats.source import Source
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"

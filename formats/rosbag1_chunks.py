@@ -31,7 +31,8 @@ from rosbags.rosbag1.reader import (
 )
 from rosbags.typesys.msg import normalize_msgtype
 
-from dynslam_formats.base import RecordWalk, first_line
+from dynslam_formats.base import RecordWalk
+from dynslam_formats.damage import first_line
 
 ROSBAG_V2 = b"#ROSBAG V2.0\n"
 INDEX_ENTRY_BYTES = 12  # time (8) and offset (4) of one message, in an index data record

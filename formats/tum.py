@@ -14,7 +14,7 @@ from typing import TextIO
 import numpy as np
 
 from dynslam_cli.errors import InputError
-from dynslam_formats.base import read_text_lines
+from dynslam_formats.source import read_text_lines
 
 STAMP_STEP_S = 1e-6  # the TUM lines' precision: a repeated stamp moves up by this much
 

@@ -10,7 +10,7 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats import ReaderEntry, ReaderOptions, ReadStats, Source
-from dynslam_formats.base import text_lines
+from dynslam_formats.source import text_lines
 
 
 class LineScanReader:

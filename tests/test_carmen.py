@@ -221,7 +221,7 @@ def test_truncated_gzip_is_processed_with_one_warning_line(tmp_path):
 
 def test_gzip_without_stats_keeps_the_error(tmp_path):
     """A plugin reading ``text_lines`` without stats still hears of the damage."""
-    from dynslam_formats.base import Source, text_lines
+    from dynslam_formats.source import Source, text_lines
 
     data = gzip.compress(GOOD_LINES.encode(), mtime=0)
     (tmp_path / "a.log.gz").write_bytes(data[: len(data) // 2])

@@ -300,7 +300,7 @@ def test_stamps_read_back_as_written(stamp):
 def test_the_guard_keeps_scans_at_laser_scan_precision(tmp_path):
     """What makes the round trip exact, for any reader: float32 ranges, beams at a float32
     start and step, headings at float32 (wrapped first: an unwrapped one would lose bits)."""
-    from dynslam_formats.base import beam_geometry
+    from dynslam_formats.guard import beam_geometry
 
     log = tmp_path / "a.log"
     log.write_text(flaser(n=7, r=1.234, pose=(1.0, 2.0, 7.0)) + "FLASER 3 1 1e300 2 "

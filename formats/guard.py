@@ -1,0 +1,221 @@
+"""What every reader's scans go through (plugins' too): the guard (a scan is finite and
+bounded, or a counted skip; float32 precision and a steady mount held) and the window of
+the log asked for (``--start``, ``--end``, ``--max-scans``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterator
+
+import numpy as np
+
+from dynslam_cli.errors import InputError
+from dynslam_cli.geometry import wrap_angle
+from dynslam_cli.types import Pose2D, Scan
+from dynslam_formats.base import LogReader, ReaderOptions
+
+MAX_BEAMS = 20_000  # per scan; the finest 2D lidars give a few thousand
+MAX_COORDINATE_M = 1e7  # an odometry or mounting pose farther out than this is garbage
+MAX_RANGE_M = 1000.0  # a max range above this is capped: readings beyond are no-returns
+FULL_TURN = 2 * math.pi * 1.01  # a sweep spans at most one turn (plus rounding)
+
+
+def _finite_pose(pose: Pose2D) -> bool:
+    return (math.isfinite(pose.theta) and abs(pose.x) <= MAX_COORDINATE_M
+            and abs(pose.y) <= MAX_COORDINATE_M)  # (NaN fails the comparisons)
+
+
+def scan_problem(scan: Scan) -> str | None:
+    """Why a scan cannot be used (None: it can). Cheap: a few vector checks per scan."""
+    n = len(scan.ranges)
+    if not math.isfinite(scan.stamp):
+        return "time stamp is not a finite number"
+    if not (_finite_pose(scan.odom) and _finite_pose(scan.laser)):
+        return f"pose is not finite or beyond ±{MAX_COORDINATE_M:g} m"
+    if n == 0 or n != len(scan.angles):
+        return "no beams, or beam angles and ranges differ in count"
+    if n > MAX_BEAMS:
+        return f"more than {MAX_BEAMS} beams in one scan"
+    if not (scan.max_range > 0 and math.isfinite(scan.max_range)):
+        return "max range is not a positive number"
+    if not np.isfinite(scan.angles).all():
+        return "beam angles are not finite (angle_min / increment)"
+    span = float(scan.angles.max() - scan.angles.min())
+    if (n > 1 and span <= 0) or span > FULL_TURN:
+        return "beam angles do not make a sweep (increment zero, or more than one turn)"
+    return None
+
+
+def beam_geometry(angles: np.ndarray) -> tuple[float, float]:
+    """(start, step) of evenly spaced beam angles, each at float32 precision: the
+    ``angle_min`` and ``angle_increment`` of a ``sensor_msgs/LaserScan``."""
+    n = len(angles)
+    step = (float(angles[-1]) - float(angles[0])) / (n - 1) if n > 1 else 0.0
+    return float(np.float32(angles[0])), float(np.float32(step))
+
+
+def _single_heading(pose: Pose2D) -> Pose2D:
+    theta = pose.theta if -math.pi <= pose.theta <= math.pi else wrap_angle(pose.theta)
+    heading = float(np.float32(theta))  # (of an unwrapped heading, float32 would be coarse)
+    return pose if heading == pose.theta else Pose2D(pose.x, pose.y, heading)
+
+
+class SinglePrecision:
+    """Scans as a ``sensor_msgs/LaserScan`` holds them: float32 ranges and max range, beam
+    angles ``start + i·step`` with float32 start and step (:func:`beam_geometry`); and the
+    headings of the odometry and the mount at float32 (2.4e-7 rad at most), as a heading
+    read back from a quaternion differs from the one written in float64's last bits, and a
+    run follows such bits. Text logs (ranges in mm or cm, headings in 1e-6 rad) and bags
+    (float32 ranges) lose nothing real by it, and a scan written to a recording
+    (``--record``) reads back bit for bit: a run on the recording is the same run. Equal
+    geometries share one read-only angle array."""
+
+    def __init__(self) -> None:
+        self._key: tuple[int, float, float] | None = None
+        self._angles = np.zeros(0)
+
+    def __call__(self, scan: Scan) -> Scan:
+        n = len(scan.angles)
+        key = (n, *beam_geometry(scan.angles))
+        if key != self._key:
+            self._key = key
+            self._angles = key[1] + key[2] * np.arange(n, dtype=np.float64)
+            self._angles.flags.writeable = False
+        with np.errstate(over="ignore"):  # beyond float32: +inf, no return (as it was)
+            ranges = scan.ranges.astype(np.float32).astype(np.float64)
+        return dataclasses.replace(
+            scan, ranges=ranges,
+            angles=self._angles, max_range=float(np.float32(scan.max_range)),
+            odom=_single_heading(scan.odom), laser=_single_heading(scan.laser))
+
+
+# A mount that moves less than this (metres, radians) from the one held has not moved: a
+# Carmen log's mount is the difference of two poses printed to six decimals (fr079: 1.2e-6 m
+# apart from scan to scan; MIT CSAIL 5e-13 m), far below a laser's millimetres.
+MOUNT_TOLERANCE_M, MOUNT_TOLERANCE_RAD = 1e-5, 1e-5
+
+
+def same_mount(a: Pose2D, b: Pose2D) -> bool:
+    """Whether two laser mounts are one within ``MOUNT_TOLERANCE_M`` / ``_RAD``."""
+    return (abs(a.x - b.x) <= MOUNT_TOLERANCE_M and abs(a.y - b.y) <= MOUNT_TOLERANCE_M
+            and abs(math.remainder(a.theta - b.theta, math.tau)) <= MOUNT_TOLERANCE_RAD)
+
+
+class SteadyMount:
+    """Scans with the laser mount held: a mount that is the held one within the tolerance
+    (:func:`same_mount`) becomes it exactly, any other is held from then on. The run then
+    sees one mount where the log has one, and a recording sends it once, on ``/tf_static``
+    (only a mount that really moves goes on ``/tf``), and still plays back into the same
+    run."""
+
+    def __init__(self) -> None:
+        self._mount: Pose2D | None = None
+
+    def __call__(self, scan: Scan) -> Scan:
+        held = self._mount
+        if held is not None and scan.laser != held and same_mount(held, scan.laser):
+            return dataclasses.replace(scan, laser=held)
+        self._mount = scan.laser
+        return scan
+
+
+class ReaderFilter:
+    """A reader seen through a filter of its scans: same format name, stats and extras."""
+
+    def __init__(self, reader: LogReader) -> None:
+        self.reader = reader
+        self.format_name = reader.format_name
+        self.stats = reader.stats
+
+    def __getattr__(self, name: str) -> object:  # a reader's own extras (ROS: topics)
+        return getattr(self.reader, name)
+
+
+NO_VALID_READING = ("no valid reading (every range NaN, negative, or outside the laser's "
+                    "range_min..range_max)")
+
+
+class ScanGuard(ReaderFilter):
+    """A reader's scans as the core may use them, whatever the input: finite time stamp,
+    finite and bounded poses, finite beam angles making at most one turn, at most
+    ``MAX_BEAMS`` beams, a positive finite max range (capped at ``MAX_RANGE_M``), negative
+    readings marked invalid, at LaserScan precision (:class:`SinglePrecision`), the laser
+    mount held steady (:class:`SteadyMount`). Any other scan, and one without a single valid
+    reading, is a counted, reported skip.
+    A time stamp that does not increase is a counted warning and the scan is kept in file
+    order: real logs have a few (Radish intel and infinite-corridor), and the corrected
+    Radish logs stamp every scan alike."""
+
+    def __init__(self, reader: LogReader, name: str) -> None:
+        super().__init__(reader)
+        self.name = name
+
+    def scans(self) -> Iterator[Scan]:
+        passed = skipped = 0
+        last = -math.inf
+        single, steady = SinglePrecision(), SteadyMount()
+        for scan in self.reader.scans():
+            problem = scan_problem(scan)
+            if problem is None:
+                negative = scan.ranges < 0  # invalid, as NaN is (-inf, the -1 of some drivers)
+                if negative.any():
+                    scan = dataclasses.replace(scan,
+                                               ranges=np.where(negative, np.nan, scan.ranges))
+                if np.isnan(scan.ranges).all():
+                    problem = NO_VALID_READING
+            if problem is not None:
+                self.stats.skip(problem, scan.source_line)
+                skipped += 1
+                continue
+            passed += 1
+            if scan.stamp <= last:
+                self.stats.warn("time stamp does not increase (scan kept in file order)",
+                                scan.source_line)
+            last = max(last, scan.stamp)
+            if scan.max_range > MAX_RANGE_M:
+                self.stats.warn(f"max range above {MAX_RANGE_M:g} m capped", scan.source_line)
+                scan = dataclasses.replace(scan, max_range=MAX_RANGE_M)
+            yield steady(single(scan))
+        if skipped and not passed:
+            raise InputError(self.name, f"no usable scans: all {skipped} were skipped ("
+                             + "; ".join(sorted(self.stats.skipped)) + ")")
+
+
+class LogWindow(ReaderFilter):
+    """A reader's scans from ``start_s`` to ``end_s`` seconds after its first scan, at most
+    ``max_scans`` of them; reading stops at the end of the window."""
+
+    def __init__(self, reader: LogReader, options: ReaderOptions, name: str) -> None:
+        super().__init__(reader)
+        self.name = name
+        self.start = options.start_s if options.start_s is not None else -math.inf
+        self.end = options.end_s if options.end_s is not None else math.inf
+        self.max_scans = options.max_scans
+
+    def scans(self) -> Iterator[Scan]:
+        """The window's scans; none (the window starts after the log ends, or falls between
+        two scans) is an error that says the log's span."""
+        first, n, t = None, 0, 0.0
+        for scan in self.reader.scans():
+            first = scan.stamp if first is None else first
+            t = scan.stamp - first
+            if t > self.end or (self.max_scans is not None and n >= self.max_scans):
+                break
+            if t >= self.start:
+                n += 1
+                yield scan
+        if n == 0 and first is not None:
+            window = (f"from {self.start:g} s" if self.end == math.inf
+                      else f"from {max(self.start, 0.0):g} to {self.end:g} s")
+            raise InputError(self.name, f"no scans {window} into the log (its scans span "
+                             f"{'at least ' if t > self.end else ''}{t:.1f} s)")
+
+
+def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
+    """``reader`` behind the :class:`ScanGuard`, and in a :class:`LogWindow` when the options
+    ask for part of the log: what every reader's scans go through (plugins' too)."""
+    reader = ScanGuard(reader, name)
+    if options.start_s is None and options.end_s is None and options.max_scans is None:
+        return reader
+    return LogWindow(reader, options, name)
