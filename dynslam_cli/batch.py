@@ -34,7 +34,7 @@ CSV_FIELDS = ("log", "output", "status", "error", "format", "scans", "data_durat
 
 
 @dataclass(frozen=True)
-class Job:
+class BatchItem:
     """One log of a batch. Picklable: it travels to worker processes and Dask workers."""
 
     log: str
@@ -135,7 +135,7 @@ def _short_hash(log: str, config: str | None) -> str:
     return hashlib.sha1(key.encode()).hexdigest()[:8]
 
 
-def stale_reason(job: Job) -> str | None:
+def stale_reason(job: BatchItem) -> str | None:
     """Why the complete output in ``job.output`` does not answer ``job`` (another input, other
     reader options, configuration or snapshot period made it), or None when it does. An
     unreadable configuration is left for the run to report."""
@@ -180,7 +180,7 @@ def complete(output: Path) -> bool:
     return (output / "summary.json").is_file()
 
 
-def run_job(job: Job) -> dict[str, Any]:
+def run_job(job: BatchItem) -> dict[str, Any]:
     """Process one log (and score it); never raises for the log's own problems."""
     from dynslam_cli.config import load_config
     from dynslam_formats import ReaderOptions
@@ -213,7 +213,7 @@ def _figures(summary: dict[str, Any]) -> dict[str, Any]:
             "x_real_time": round(dur / wall, 1) if wall and dur is not None else None}
 
 
-def earlier_row(job: Job) -> dict[str, Any]:
+def earlier_row(job: BatchItem) -> dict[str, Any]:
     """The row of a log whose output an earlier run completed: status ``skipped``, its
     figures from its summary.json, its scores computed again from its files."""
     row: dict[str, Any] = {"log": job.log, "output": job.output, "status": "skipped",
@@ -229,7 +229,7 @@ def earlier_row(job: Job) -> dict[str, Any]:
     return row
 
 
-def _scores(job: Job) -> dict[str, Any]:
+def _scores(job: BatchItem) -> dict[str, Any]:
     """The row's scores (the manifest's truth and relations), as ``dynslam evaluate`` gives
     them."""
     from dynslam_cli.job import score_output
@@ -252,10 +252,10 @@ def _scores(job: Job) -> dict[str, Any]:
 def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
          overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
          default_config: str | None, format_name: str | None = None,
-         snapshots: float | None = None) -> tuple[list[Job], list[dict[str, Any]]]:
+         snapshots: float | None = None) -> tuple[list[BatchItem], list[dict[str, Any]]]:
     """Jobs to run, and rows for logs skipped because their output is complete and was
     made from the same input with the same options and configuration (a job redoing an
-    output made otherwise says why in ``Job.redo``). Every path is absolute: a Dask worker
+    output made otherwise says why in ``BatchItem.redo``). Every path is absolute: a Dask worker
     resolves relative ones in its own working folder. A row repeating an earlier row's log
     and configuration is dropped."""
     def absolute(path: str | None) -> str | None:
@@ -269,7 +269,7 @@ def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
     jobs, skipped = [], []
     for ((log, config), row), name in zip(runs.items(), names, strict=True):
         out = (outroot / name).absolute()
-        job = Job(log, str(out), config, absolute(row.get("truth")),
+        job = BatchItem(log, str(out), config, absolute(row.get("truth")),
                   absolute(row.get("relations")), overrides, force or out.exists(), reader,
                   format_name, snapshots)
         if complete(out) and not force:
@@ -282,7 +282,7 @@ def plan(rows: list[dict[str, str | None]], outroot: Path, force: bool,
     return jobs, skipped
 
 
-def run_local(jobs: list[Job], workers: int) -> Iterator[dict[str, Any]]:
+def run_local(jobs: list[BatchItem], workers: int) -> Iterator[dict[str, Any]]:
     """Results as they finish, on ``workers`` local processes (1: in this process). When
     the caller is interrupted (Ctrl-C, SIGTERM), jobs not started are dropped and running
     ones are ended: their workers get SIGTERM, remove their temporary folders and exit."""
@@ -313,7 +313,7 @@ def _exit_on_term(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
-def run_dask(jobs: list[Job], client: Any) -> Iterator[dict[str, Any]]:
+def run_dask(jobs: list[BatchItem], client: Any) -> Iterator[dict[str, Any]]:
     """Results as they finish, on a Dask distributed cluster (workers write to OUTROOT,
     which must be storage they share with this machine). Interrupted, the jobs not yet
     finished are cancelled."""
@@ -351,7 +351,7 @@ def _atomic_write(path: Path, text: str) -> None:
 
 def run_batch(rows: list[dict[str, str | None]], outroot: Path, force: bool,
               overrides: dict[str, dict[str, Any]], reader: dict[str, Any],
-              default_config: str | None, execute: Callable[[list[Job]],
+              default_config: str | None, execute: Callable[[list[BatchItem]],
                                                             Iterable[dict[str, Any]]],
               on_done: Callable[[dict[str, Any]], None] | None = None,
               format_name: str | None = None, snapshots: float | None = None

@@ -73,9 +73,10 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     source, entry, reader = open_log(log, options, format_name)
     with (atomic_output_file(elsewhere, force, log) if elsewhere else nullcontext()
           ) as recording_file, atomic_output_dir(target, force, log) as tmp:
-        snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every, config)
-                     if snapshot_every else None)
-        recording = (Recording(recording_file or tmp / Path(config.record.file).name, config)
+        snapshots = (SnapshotWriter(tmp / "snapshots", snapshot_every,
+                                    config.map.occupied_threshold) if snapshot_every else None)
+        recording = (Recording(recording_file or tmp / Path(config.record.file).name,
+                               config.record.period_s, config.map, config.laser.min_range_m)
                      if config.record.file else None)
         ticks = array("d")
         front = open_front_end(reader, source, config, read_ahead)
@@ -138,7 +139,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
         }
         if on_phase is not None:
             on_phase("writing the outputs", 0, 0)
-        write_results(tmp, result, config, summary)
+        write_results(tmp, result, config.map, summary)
     return summary, front.stats
 
 

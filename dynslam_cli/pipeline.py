@@ -158,10 +158,11 @@ class DynamicSlam:
             out.update(self._loops.counts())
         return out
 
-    def landmarks(self, mapper: DynamicMapper) -> list[Landmark]:
+    def landmarks(self, mapper: DynamicMapper | None = None) -> list[Landmark]:
         """The landmark map: every landmark the EKF confirmed (those it has let go of
         included), placed by the graph, classed static or dynamic by Table 3 against the
-        final S, with its position covariance."""
+        S of ``mapper`` (default: the maps so far), with its position covariance."""
+        mapper = self.mapper if mapper is None else mapper
         if self._slam is None:
             return []
         corners = self._slam.landmark_map(self._loops.scan_correction

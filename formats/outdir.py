@@ -19,9 +19,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from dynslam_cli.config import Config
 from dynslam_cli.errors import OutputError
 from dynslam_cli.result import SlamResult
+from dynslam_cli.sections import MapConfig
 from dynslam_formats.changes import write_changes
 from dynslam_formats.landmarks import write_landmarks
 from dynslam_formats.mapfile import write_map
@@ -253,11 +253,11 @@ def _undo(tmp: Path | None, made: list[Path]) -> None:
             break
 
 
-def write_results(folder: Path, result: SlamResult, config: Config,
+def write_results(folder: Path, result: SlamResult, m: MapConfig,
                   summary: dict[str, Any]) -> None:
-    """Write every file of the output contract into ``folder`` (an OSError, such as a full
-    disk, becomes an :class:`OutputError` in :func:`atomic_output_dir`)."""
-    m = config.map
+    """Write every file of the output contract into ``folder``, the maps by ``m``'s
+    thresholds (an OSError, such as a full disk, becomes an :class:`OutputError` in
+    :func:`atomic_output_dir`)."""
     write_map(folder, "static", result.static, m.free_threshold, m.occupied_threshold,
               probabilities=True)
     write_map(folder, "dynamic", result.dynamic, m.free_threshold, m.occupied_threshold)

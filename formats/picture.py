@@ -310,10 +310,10 @@ class SnapshotWriter:
 
     GIF_PX = 800  # the GIF's pictures are shrunk to at most this size
 
-    def __init__(self, folder: Path, every_s: float, config: Any) -> None:
+    def __init__(self, folder: Path, every_s: float, occupied_threshold: float) -> None:
         self.folder = folder
         self.every = every_s
-        self.threshold = config.map.occupied_threshold
+        self.threshold = occupied_threshold
         self.start: float | None = None
         self.next: float | None = None
         # each snapshot's picture (PNG bytes, one pixel per cell), grid origin, size, time

@@ -59,17 +59,16 @@ from __future__ import annotations
 import math
 from array import array
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from dynslam_cli import __version__
-from dynslam_cli.config import Config
 from dynslam_cli.geometry import compose, inverse, moved_far
 from dynslam_cli.mapping.changes import ChangeEvent
-from dynslam_cli.mapping.grid import OccupancyMap, probability
-from dynslam_cli.pipeline import DynamicSlam
+from dynslam_cli.mapping.grid import GridStack, OccupancyMap, probability
 from dynslam_cli.result import Landmark, SlamResult
+from dynslam_cli.sections import MapConfig
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.guard import beam_geometry
 from dynslam_formats.mapfile import class_masks
@@ -205,21 +204,41 @@ def path_cdr(stamp: float, frame: str, rows: np.ndarray) -> bytes:
     return b"\0\x01\0\0" + out.tobytes()
 
 
+class RunningSlam(Protocol):
+    """What the recording reads of a run while it goes on (dynslam_cli.pipeline.DynamicSlam
+    is one): the last pose, the grids, the current estimates of given scans and the
+    landmark map so far."""
+
+    @property
+    def pose(self) -> Pose2D: ...
+
+    @property
+    def grids(self) -> GridStack: ...
+
+    def estimates(self, scans: np.ndarray | None = None) -> np.ndarray: ...
+
+    def landmarks(self) -> list[Landmark]: ...
+
+
 class Recording:
     """Writes the recording of one run into ``path`` (inside the run's temporary output
     folder, so it appears with the other outputs or not at all): :meth:`add` after each
     scan, :meth:`finish` with the result, :meth:`close` in every case."""
 
-    def __init__(self, path: Path, config: Config) -> None:
+    def __init__(self, path: Path, period_s: float, m: MapConfig, min_range_m: float) -> None:
+        """``period_s``: the maps, paths and landmarks at most this often (log time);
+        ``m``: the maps' thresholds; ``min_range_m``: a scan's range_min where its log
+        gives none."""
         from mcap.writer import CompressionType, Writer
         from rosbags.typesys import Stores, get_typestore
 
         self.path = path
-        self.config = config
-        self.period = config.record.period_s
+        self.period = period_s
+        self._map = m
+        self._min_range_m = min_range_m
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         self.t = self.store.types
-        self.classes = StoredClasses(config.map.free_threshold, config.map.occupied_threshold)
+        self.classes = StoredClasses(m.free_threshold, m.occupied_threshold)
         self._file = open(path, "wb")  # noqa: SIM115 - closed by close()
         self.writer = Writer(self._file, compression=CompressionType.ZSTD)
         self.writer.start(profile="ros2", library=f"dynslam {__version__}")
@@ -243,10 +262,10 @@ class Recording:
         self._time_of, self._time_value = math.nan, (0, 0)
 
     # -- per scan -------------------------------------------------------------------------
-    def add(self, scan: Scan, slam: DynamicSlam) -> None:
-        """Record one scan the run has processed: its TF, the scan, and every ``period_s``
-        of log time the grids, paths and landmarks."""
-        scan = self.config.laser.limit(scan)
+    def add(self, scan: Scan, slam: RunningSlam) -> None:
+        """Record one scan the run has processed (as the run saw it: its max range the
+        configuration's): its TF, the scan, and every ``period_s`` of log time the grids,
+        paths and landmarks."""
         stamp, pose, odom = scan.stamp, slam.pose, scan.odom
         if self._mount is None:
             self._mount = scan.laser
@@ -273,7 +292,7 @@ class Recording:
             self._next_s = stamp + self.period
             self._send_state(stamp, slam)
 
-    def _send_state(self, stamp: float, slam: DynamicSlam) -> None:
+    def _send_state(self, stamp: float, slam: RunningSlam) -> None:
         """The grids (if changed), the paths so far, the landmarks (if changed)."""
         grids = slam.grids
         for topic, layer in (("/map", "static"), ("/dynamic_map", "dynamic")):
@@ -285,7 +304,7 @@ class Recording:
             keys = np.append(keys, len(odometry) - 1)
         self._send_paths(stamp, np.column_stack((odometry[keys, 0], slam.estimates(keys))),
                          odometry[keys])
-        self._send_landmarks(stamp, slam.landmarks(slam.mapper))
+        self._send_landmarks(stamp, slam.landmarks())
 
     # -- at the end -----------------------------------------------------------------------
     def finish(self, result: SlamResult) -> dict[str, Any]:
@@ -293,7 +312,7 @@ class Recording:
         then the file's index; returns what the summary says of the recording."""
         odometry = self._odometry_rows()
         stamp = float(result.trajectory[-1, 0]) if len(result.trajectory) else 0.0
-        m = self.config.map
+        m = self._map
         for topic, grid in (("/map", result.static), ("/dynamic_map", result.dynamic)):
             self._send_grid(topic, stamp, self._grid_values(grid, m), grid.origin_x,
                             grid.origin_y, grid.resolution)
@@ -310,7 +329,7 @@ class Recording:
         return np.frombuffer(self._odometry, np.float64).reshape(-1, 4)
 
     @staticmethod
-    def _grid_values(grid: OccupancyMap, m: Any) -> np.ndarray:
+    def _grid_values(grid: OccupancyMap, m: MapConfig) -> np.ndarray:
         return np.concatenate([occupancy_values(prob, m.free_threshold, m.occupied_threshold)
                                for _, prob in grid.bands()]) if grid.shape[0] else \
             np.zeros(grid.shape, np.int8)
@@ -373,7 +392,7 @@ class Recording:
             header=self._header(scan.stamp, LASER_FRAME), angle_min=start,
             angle_max=float(scan.angles[-1]), angle_increment=step,
             time_increment=_or(scan.time_increment, 0.0), scan_time=_or(scan.scan_time, 0.0),
-            range_min=_or(scan.range_min, self.config.laser.min_range_m),
+            range_min=_or(scan.range_min, self._min_range_m),
             range_max=float(scan.max_range), ranges=ranges.astype(np.float32),
             intensities=np.zeros(0, np.float32))
 

@@ -213,7 +213,7 @@ def test_snapshots_and_the_gif_carry_their_time_and_frame(tmp_path):
     from dynslam_formats.picture import SnapshotWriter
 
     static, dynamic = _room_maps()
-    writer = SnapshotWriter(tmp_path / "snapshots", 5.0, Config())
+    writer = SnapshotWriter(tmp_path / "snapshots", 5.0, Config().map.occupied_threshold)
 
     class Running:
         def current(self) -> SlamResult:

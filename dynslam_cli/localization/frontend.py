@@ -14,9 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynslam_cli.geometry import relative
 from dynslam_cli.localization.cornerslam import observe_corners
-from dynslam_cli.localization.scanmatch import ScanMatcher
+from dynslam_cli.localization.scanmatch import ScanMatcher, WheelOdometry
 from dynslam_cli.sections import CornerConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
@@ -54,7 +53,7 @@ class ScanMeasurer:
     def __init__(self, match: MatchConfig | None, motion_noise: NoiseModel,
                  corners: CornerConfig | None) -> None:
         self._matcher = ScanMatcher(match, motion_noise) if match is not None else None
-        self._last_odom: Pose2D | None = None
+        self._wheel = WheelOdometry()
         self._corners = corners
 
     def __call__(self, scan: Scan) -> Measurement:
@@ -64,5 +63,4 @@ class ScanMeasurer:
     def motion(self, scan: Scan) -> Motion:
         if self._matcher is not None:
             return Motion(*self._matcher.increment(scan))
-        last, self._last_odom = self._last_odom, scan.odom
-        return Motion(relative(last, scan.odom) if last is not None else Pose2D(), "odometry")
+        return Motion(self._wheel.increment(scan.odom), "odometry")

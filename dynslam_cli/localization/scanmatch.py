@@ -209,6 +209,19 @@ def thin(points: np.ndarray, cell: float) -> np.ndarray:
     return first_in_cells(np.ascontiguousarray(points, dtype=np.float64), cell)
 
 
+class WheelOdometry:
+    """The wheel odometry's motion since the previous scan, in the previous robot frame,
+    from each scan's odometry pose in turn (the first scan's: from the origin)."""
+
+    def __init__(self) -> None:
+        self._last = Pose2D()
+
+    def increment(self, odom: Pose2D) -> Pose2D:
+        step = relative(self._last, odom)
+        self._last = odom
+        return step
+
+
 class ScanMatcher:
     """Turns (scan, wheel odometry) into a scan-matched motion increment."""
 
@@ -218,7 +231,7 @@ class ScanMatcher:
         self._map = LocalMap(cfg)
         self._pose = Pose2D()  # matched pose of the last scan in the matcher's frame
         self._key_pose: Pose2D | None = None  # ... and of the last key scan
-        self._last_odom = Pose2D()
+        self._wheel = WheelOdometry()
         self._last_increment = Pose2D()
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
         # the last scan whose match agreed with its wheel odometry: its pose and odometry
@@ -231,8 +244,7 @@ class ScanMatcher:
         "fallback" (no good match: the wheel odometry's) or "odometry" (no local map to
         match against)."""
         cfg = self.cfg
-        wheel = relative(self._last_odom, scan.odom)
-        self._last_odom = scan.odom
+        wheel = self._wheel.increment(scan.odom)
         guess = compose(self._pose, wheel)
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
