@@ -36,6 +36,17 @@ def relative(a: Pose2D, b: Pose2D) -> Pose2D:
     return compose(inverse(a), b)
 
 
+def compound_covariance(a: Pose2D, cov_a: np.ndarray, b: Pose2D, cov_b: np.ndarray
+                        ) -> np.ndarray:
+    """Covariance (x, y, θ) of a ⊕ b from those of a and of b (independent), to first order:
+    J_a Σ_a J_aᵀ + J_b Σ_b J_bᵀ with the Jacobians of the composition."""
+    c, s = math.cos(a.theta), math.sin(a.theta)
+    ja = np.array([[1.0, 0.0, -s * b.x - c * b.y], [0.0, 1.0, c * b.x - s * b.y],
+                   [0.0, 0.0, 1.0]])
+    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return ja @ cov_a @ ja.T + jb @ cov_b @ jb.T
+
+
 def moved_far(a: Pose2D, b: Pose2D, distance_m: float, angle_rad: float) -> bool:
     """Whether pose b lies at least ``distance_m`` from pose a or is turned at least
     ``angle_rad`` from it: the rule by which a new key scan, graph node or path pose is

@@ -91,21 +91,24 @@ class DynamicSlam:
         EKF-SLAM over corners, then the pose graph's correction of its drift."""
         if not self._ekf:
             return scan.odom
-        local = self.track_with_ekf(scan)  # then the graph: a node every so often, a loop
-        # closure where the robot is back in a known place, the scan placed by the graph
-        return local if self._loops is None else self._loops.place(local, scan)
+        local, moved = self.track_with_ekf(scan)  # then the graph: a node every so often, a
+        # loop closure where the robot is back in a known place, the scan placed by the graph
+        return local if self._loops is None else self._loops.place(local, scan, moved)
 
-    def track_with_ekf(self, scan: Scan) -> Pose2D:
+    def track_with_ekf(self, scan: Scan) -> tuple[Pose2D, tuple[Pose2D, np.ndarray] | None]:
         """Sec. 4: predict from the (scan-matched) motion, detect corners, associate,
         classify landmarks by S^{t-1} (Table 3), correct with the static ones. The motion
-        is scan-matched where the match is good, else the odometry's."""
+        is scan-matched where the match is good, else the odometry's. Returns the pose and
+        the motion predicted with (increment, covariance; None at the first scan)."""
         motion, corners = self._measure(scan)
         self._motion_sources[motion.source] += 1
         if self._slam is None:
             self._slam = CornerSlam(scan.odom, self.config.ekf)
-            return scan.odom
-        return self._slam.step(self._count, motion.increment, motion.cov, scan.has_odometry,
-                               corners, lambda xy: self.mapper.classify_landmarks(self.to_map(xy)))
+            return scan.odom, None
+        slam, u = self._slam, motion.increment
+        pose = slam.step(self._count, u, motion.cov, scan.has_odometry, corners,
+                         lambda xy: self.mapper.classify_landmarks(self.to_map(xy)))
+        return pose, (u, slam.motion_covariance(u, motion.cov, scan.has_odometry))
 
     def to_map(self, points: np.ndarray) -> np.ndarray:
         """EKF-frame positions (N×2) into the map frame by the current graph correction."""

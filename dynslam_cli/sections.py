@@ -382,7 +382,14 @@ class LoopConfig:
     attempt_every_m: float = 1.0
     """Try at most once per this much driven (a closure just made needs no repeat)."""
     chain_noise_scale: float = 1.5
-    """Noise of the EKF's motion between nodes, relative to the wheel-odometry model."""
+    """The edges between consecutive nodes are this many times less sure than
+    ``chain_information`` says (standard deviations)."""
+    chain_information: str = "motion"
+    """What the edge between two consecutive nodes is as sure of: "motion", the EKF's motion
+    noise model over the motion between them (as sure along a corridor as across it);
+    "matched", the covariances of the scan-matched increments between them compounded (the
+    model's where a scan was not matched), so a loop closure can move the graph along a
+    corridor where the matches could not see, and not across it."""
     agree_chi2: float = 0.1
     """A closure whose error under the current estimate is below this χ² already agrees
     with the graph: the optimization waits (for the next disagreeing closure or the end),
@@ -422,6 +429,8 @@ class LoopConfig:
             (self.pending_closures >= 1, "loop.pending_closures must be >= 1"),
             (self.online_nodes >= 2, "loop.online_nodes must be >= 2"),
             (self.online_flops > 0, "loop.online_flops must be > 0"),
+            (self.chain_information in ("motion", "matched"),
+             "loop.chain_information must be motion or matched"),
         ])
 
 

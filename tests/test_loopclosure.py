@@ -350,3 +350,26 @@ def test_a_match_keeps_none_of_the_odometrys_error():
         assert m.share > 0.9
         assert math.hypot(m.pose.x - true.x, m.pose.y - true.y) < 0.005
         assert abs(math.degrees(m.pose.theta - true.theta)) < 0.05
+
+
+def test_matched_chain_edges_are_loose_where_the_matches_could_not_see():
+    """chain_information = "matched": the edge between two nodes is as sure as the scan
+    matches between them were: along a corridor (the matches' long axis, x) far less sure
+    than across it; with the motion model ("motion", the default) as sure both ways."""
+    corridor = np.diag([0.05 ** 2, 0.002 ** 2, math.radians(0.1) ** 2])  # per scan
+    scan = Scan(0.0, np.full(len(ANGLES), 5.0), ANGLES, 20.0, Pose2D())
+    infos = {}
+    for mode in ("motion", "matched"):
+        closer = LoopCloser(LoopConfig(min_travel_m=1e9, chain_information=mode),
+                            MatchConfig(), EkfConfig().noise)
+        step = Pose2D(0.1, 0.0, 0.0)
+        for k in range(6):  # 0.5 m: a node at the first scan and one at the last
+            closer.place(Pose2D(0.1 * k, 0.0, 0.0), scan, (step, corridor) if k else None)
+        _, _, _, info, _ = closer.graph.edges.arrays()
+        assert len(info) == 1
+        infos[mode] = info[0]
+    motion, matched = infos["motion"], infos["matched"]
+    assert motion[0, 0] == pytest.approx(motion[1, 1])
+    assert matched[1, 1] > 100 * matched[0, 0]
+    # five matches, each 5 cm along: the edge's standard deviation along is about 11 cm
+    assert 1.0 / math.sqrt(matched[0, 0]) == pytest.approx(1.5 * 0.05 * math.sqrt(5), rel=0.05)

@@ -116,10 +116,18 @@ class CornerSlam:
         does not), else the odometry's noise model (without odometry: the wide stationary
         prior)."""
         u = np.array([increment.x, increment.y, increment.theta])
-        if cov is None:
-            scale = 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE
-            cov = motion_noise(u, self.config.noise) * scale ** 2
-        self.ekf.predict(u, cov)
+        self.ekf.predict(u, self.motion_covariance(increment, cov, has_odometry))
+
+    def motion_covariance(self, increment: Pose2D, cov: np.ndarray | None,
+                          has_odometry: bool = True) -> np.ndarray:
+        """The covariance the prediction takes for a motion increment: its own (a scan
+        match's), else the odometry's noise model (without odometry: the wide stationary
+        prior)."""
+        if cov is not None:
+            return cov
+        scale = 1.0 if has_odometry else NO_ODOMETRY_NOISE_SCALE
+        u = np.array([increment.x, increment.y, increment.theta])
+        return motion_noise(u, self.config.noise) * scale ** 2
 
     def associate(self, observations: list[tuple[np.ndarray, bool]]
                   ) -> tuple[list[tuple[int, np.ndarray]], set[int]]:

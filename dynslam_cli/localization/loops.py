@@ -34,6 +34,7 @@ import numpy as np
 
 from dynslam_cli.geometry import (
     compose,
+    compound_covariance,
     inverse,
     moved_far,
     relative,
@@ -57,6 +58,8 @@ ANGLE_STEP_DEG = 1.0
 NORMAL_NEIGHBOURS = 6
 CANDIDATE_BATCH = 8  # loop candidates whose graph distance is found first (_candidate)
 LOOP_EDGE_LENGTH_M = 1e-3  # a loop closure's length in the graph distance
+# Added to a chain edge's covariance: a millimetre and 0.01° (no edge infinitely sure).
+CHAIN_FLOOR = np.diag([1e-6, 1e-6, math.radians(0.01) ** 2])
 ONLINE_ITERATIONS = 1  # Gauss-Newton steps per optimization while the log runs
 FINAL_ITERATIONS = 10
 
@@ -267,6 +270,8 @@ class LoopCloser:
         self._links = Links()  # the graph, for its distances
         self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
+        self._chain = (Pose2D(), np.zeros((3, 3)), 0)  # since the last node: motion, its
+        # covariance, scans (chain_information = "matched")
         self._scan_nodes = array("i")  # per scan placed: its node ...
         self._scan_offsets = array("d")  # ... and its pose in that node's EKF frame
 
@@ -287,14 +292,23 @@ class LoopCloser:
         z = relative(self.local_poses[-1], local_pose)
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
-        st, sr = motion_std(z.x, z.y, z.theta, self.motion_noise)
-        info = np.diag(1.0 / (np.array([st * st, st * st, sr * sr])
-                              * self.cfg.chain_noise_scale ** 2))
-        graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), info)
+        graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), self._chain_information(z))
         step = math.hypot(z.x, z.y)
         self._append(local_pose, points, self.path[-1] + step)
         self._links.link(k_prev, k, step)
         return self._try_closure(k)
+
+    def _chain_information(self, z: Pose2D) -> np.ndarray:
+        """The information of the edge of motion ``z`` from the last node to a new one
+        (``chain_information``; the model's where no scan since the last node came with
+        its motion), divided by ``chain_noise_scale``²; the chain starts anew."""
+        _, cov, scans = self._chain
+        self._chain = (Pose2D(), np.zeros((3, 3)), 0)
+        scale = self.cfg.chain_noise_scale ** 2
+        if self.cfg.chain_information == "matched" and scans:
+            return np.linalg.inv(cov * scale + CHAIN_FLOOR)
+        st, sr = motion_std(z.x, z.y, z.theta, self.motion_noise)
+        return np.diag(1.0 / (np.array([st * st, st * st, sr * sr]) * scale))
 
     def pose(self, k: int) -> Pose2D:
         x = self.graph.poses[k]
@@ -488,10 +502,17 @@ class LoopCloser:
         return {"graph_nodes": len(self.local_poses), "loop_closure_attempts": self.attempts,
                 "loop_closures": self.closures}
 
-    def place(self, local_pose: Pose2D, scan: Scan) -> Pose2D:
-        """A scan at the EKF's pose ``local_pose``: a new node (and a loop closure attempt)
-        where the robot has moved far enough from the last, else kept as an offset from the
-        last node; returns the scan's pose in the map frame (the node's, corrected)."""
+    def place(self, local_pose: Pose2D, scan: Scan,
+              motion: tuple[Pose2D, np.ndarray] | None = None) -> Pose2D:
+        """A scan at the EKF's pose ``local_pose``, reached by ``motion`` (the increment
+        since the scan before and its covariance, as the EKF predicted with): a new node (and
+        a loop closure attempt) where the robot has moved far enough from the last, else
+        kept as an offset from the last node; returns the scan's pose in the map frame (the
+        node's, corrected)."""
+        if motion is not None and self.cfg.chain_information == "matched":
+            moved, cov, scans = self._chain
+            self._chain = (compose(moved, motion[0]),
+                           compound_covariance(moved, cov, motion[0], motion[1]), scans + 1)
         if self.wants_node(local_pose):
             self.add_node(local_pose, scan_points(scan, self.match.max_range_m,
                                                   self.match.subsample))
