@@ -193,3 +193,43 @@ def test_a_corner_confirmed_twice_is_one_row_of_the_landmark_map():
     _, _, _, x, y, fused = rows[0]
     assert x == pytest.approx(1.03 - 0.03 / 5) and y == pytest.approx(2.0)
     assert fused[0, 0] == pytest.approx(0.02 ** 2 / 5)
+
+
+def test_conditioning_on_the_robot_keeps_the_landmarks_relative_uncertainty():
+    """Ekf.condition_on_robot: the means stay, the robot's covariance is 0, a landmark's is
+    its covariance given the robot's pose (the inverse of its block of the information
+    matrix), so drift shared by the robot and the landmark is let go."""
+    rng = np.random.default_rng(3)
+    ekf = Ekf(np.array([5.0, -2.0, 0.7]), NoiseModel())
+    ekf.cov = np.diag([4.0, 9.0, math.radians(8.0) ** 2])  # drifted far since the start
+    ekf.add_landmark(np.array([3.0, 0.4]))
+    ekf.add_landmark(np.array([6.0, -0.9]))
+    ekf.predict(np.array([0.3, 0.0, 0.05]), np.diag(rng.uniform(1e-4, 1e-3, 3)))
+    x, cov = ekf.x.copy(), ekf.cov.copy()
+    ekf.condition_on_robot()
+    assert np.array_equal(ekf.x, x)
+    assert not ekf.cov[:3].any() and not ekf.cov[:, :3].any()
+    given_robot = np.linalg.inv(np.linalg.inv(cov)[3:, 3:])
+    assert np.allclose(ekf.cov[3:, 3:], given_robot, rtol=1e-6, atol=1e-12)
+    assert np.trace(ekf.cov[3:, 3:]) < 0.01 * np.trace(cov[3:, 3:])  # the drift is gone
+
+
+def test_robocentric_filter_sees_a_corner_as_surely_after_a_long_drive():
+    """With ``robocentric`` the robot's covariance is 0 after each step, and a corner
+    first seen after 100 m of uncertain driving is as sure as one seen at the start (its
+    uncertainty relative to the robot); without, it carries all of the drift."""
+    def corner_cov(robocentric: bool, metres: float) -> np.ndarray:
+        slam = CornerSlam(Pose2D(), EkfConfig(robocentric=robocentric, confirm_observations=1))
+        step, cov = Pose2D(0.5, 0.0, 0.0), np.diag([0.02 ** 2, 0.02 ** 2, 1e-4])
+        for k in range(int(metres / 0.5)):
+            slam.step(k + 1, step, cov, True, [], lambda xy: ["static"] * len(xy))
+        for k in (10_000, 10_001):  # seen twice while standing: confirmed
+            slam.step(k, Pose2D(), cov, True, [(np.array([3.0, 0.5]), True)],
+                      lambda xy: ["static"] * len(xy))
+        if robocentric:
+            assert not slam.ekf.cov[:3, :3].any()
+        return slam.ekf.cov[3:5, 3:5]
+
+    near, far = corner_cov(True, 0.5), corner_cov(True, 100.0)
+    assert np.allclose(near, far, rtol=1e-9, atol=1e-15)
+    assert np.trace(corner_cov(False, 100.0)) > 100 * np.trace(near)

@@ -107,6 +107,8 @@ class CornerSlam:
         self.correct(pairs)
         self.add_new(observations, not_new)
         self.prune()
+        if self.config.robocentric:
+            self.ekf.condition_on_robot()
         return self.pose
 
     def predict(self, increment: Pose2D, cov: np.ndarray | None, has_odometry: bool = True

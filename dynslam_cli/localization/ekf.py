@@ -159,6 +159,21 @@ class Ekf:
         cov -= k @ w.T
         self.cov = 0.5 * (cov + cov.T)
 
+    def condition_on_robot(self) -> None:
+        """The state given the robot's pose, its estimate taken as exact (a robocentric
+        filter): the landmarks' covariance becomes their uncertainty relative to the robot,
+        P_ll − P_lr P_rr⁺ P_rl, and the robot's is 0; the means stay. What is let go is how
+        far the robot and everything it sees may have drifted together since the start:
+        nothing a local filter can observe, and what makes its linearized updates
+        inconsistent once the heading is uncertain by a few degrees."""
+        cov = self.cov
+        if len(self.x) > ROBOT:
+            prl = cov[:3, 3:]
+            lm = cov[3:, 3:] - prl.T @ np.linalg.pinv(cov[:3, :3]) @ prl
+            cov[3:, 3:] = 0.5 * (lm + lm.T)
+        cov[:3, :] = 0.0
+        cov[:, :3] = 0.0
+
     def add_landmark(self, z: np.ndarray) -> int:
         """Augment the state with a landmark first seen as observation z; returns its index."""
         pose = self.x[:3]
