@@ -209,9 +209,12 @@ class EkfConfig:
     """After each scan the filter is conditioned on the robot's pose (a robocentric filter:
     :meth:`dynslam_cli.localization.ekf.Ekf.condition_on_robot`): its covariance keeps what
     the robot does not know of the landmarks around it, not the drift since the first scan
-    (the pose graph's to correct). With the drift kept, a heading a few degrees uncertain
-    makes re-observed corners move the robot sideways: on FR079 1 m within 5 s while it
-    turns in place."""
+    (the pose graph's to correct), and a landmark's covariance in landmarks.csv is its
+    uncertainty relative to the robot that saw it. With the drift kept (false, the
+    default), a heading a few degrees uncertain makes re-observed corners move the robot
+    sideways: on FR079 1 m within 5 s while it turns in place. Off by default until a
+    walker who stops and walks on is one track: true reports one such stop in the hall
+    world as an object that appeared."""
     noise: NoiseModel = field(default_factory=NoiseModel)
 
     def check(self) -> None:
