@@ -45,7 +45,7 @@ class DynamicSlam:
     def __init__(self, config: Config, front: MeasuredScans | None = None,
                  online_dynamic: bool = True) -> None:
         self.config = config
-        self._ekf = config.ekf.localization == "ekf"  # else odometry alone (Fig. 3a)
+        self._ekf = config.ekf.filtered
         use_graph = config.loop.enabled and self._ekf
         # With the pose graph the maps are made again at the end; while running, the filter
         # needs S alone (Table 3), and D only if someone looks (:meth:`current`).
@@ -106,9 +106,11 @@ class DynamicSlam:
             self._slam = CornerSlam(scan.odom, self.config.ekf)
             return scan.odom, None
         slam, u = self._slam, motion.increment
-        pose = slam.step(self._count, u, motion.cov, scan.has_odometry, corners,
+        q = slam.motion_covariance(u, motion.cov, scan.has_odometry)  # (once: the EKF's and
+        # the graph chain's)
+        pose = slam.step(self._count, u, q, scan.has_odometry, corners,
                          lambda xy: self.mapper.classify_landmarks(self.to_map(xy)))
-        return pose, (u, slam.motion_covariance(u, motion.cov, scan.has_odometry))
+        return pose, (u, q)
 
     def to_map(self, points: np.ndarray) -> np.ndarray:
         """EKF-frame positions (N×2) into the map frame by the current graph correction."""
@@ -177,7 +179,7 @@ class DynamicSlam:
 def measurer(config: Config) -> ScanMeasurer:
     """What ``config`` has the filter measure from each scan: with the EKF, the corners and
     (where scan matching is on) the scan-matched motion; with odometry alone, neither."""
-    ekf = config.ekf.localization == "ekf"
+    ekf = config.ekf.filtered
     return ScanMeasurer(config.match if ekf and config.match.enabled else None,
                         config.ekf.noise, config.corners if ekf else None)
 

@@ -217,6 +217,12 @@ class EkfConfig:
     object that appeared (the event tests' 95% precision)."""
     noise: NoiseModel = field(default_factory=NoiseModel)
 
+    @property
+    def filtered(self) -> bool:
+        """Whether the EKF localizes (else the odometry alone, paper Fig. 3a): the switch,
+        read by the pipeline and by what measures each scan for it."""
+        return self.localization == "ekf"
+
     def check(self) -> None:
         require([
             (self.localization in ("ekf", "odometry"),
