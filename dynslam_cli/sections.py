@@ -471,8 +471,8 @@ class ChangeConfig:
     the seen centre of a standing object wanders."""
     still_s: float = 3.0
     """An object counts as standing (appeared, or vacated from S) only if it was seen
-    standing for this long (seconds; appeared: in at least half the scans of that time): a
-    walker stands nowhere that long."""
+    standing for this long (seconds; appeared: seen at the start and at the end of that time
+    and in at least half its scans): a walker stands nowhere that long."""
     merge_distance_m: float = 0.3
     """Stationary tracks whose places lie this close (metres) are one object."""
     join_gap_s: float = 2.0

@@ -69,6 +69,19 @@ def test_a_walker_is_never_an_object_that_appeared():
     assert kinds and set(kinds) == {"moving"}
 
 
+@pytest.mark.parametrize(("stood_s", "appeared"), [(2.5, False), (3.5, True)])
+def test_an_object_appeared_only_if_seen_standing_for_still_s(stood_s, appeared):
+    """A thing seen still in every scan for less than ``still_s`` (3 s) is not an object
+    that appeared (a slow walker's stretch, a cart pushed by), even inside a 3 s window
+    that saw it more than half the time; seen standing 3.5 s, it is."""
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(250):
+        t = k / RATE
+        slam.step(_scan(t, box=10.0 <= t < 10.0 + stood_s))
+    kinds = [e.kind for e in slam.result().changes]
+    assert ("appeared" in kinds) == appeared
+
+
 def test_without_the_dynamic_map_there_are_no_events():
     config = load_config(overrides={"ekf": {"localization": "odometry"},
                                     "dynamic": {"enabled": False}})

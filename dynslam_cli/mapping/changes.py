@@ -370,14 +370,15 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
 
 
 def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
-    """Whether some ``still_s`` seconds of the log saw the object in at least half their
-    scans (stamps sorted): an object standing there, not a few stray returns (a beam
-    split on an edge) that come back now and then."""
-    end = sighted + still_s
-    ok = end <= stamps[-1]
-    count = np.searchsorted(sighted, end, side="right") - np.arange(len(sighted))
-    scans = np.searchsorted(stamps, end, side="right") - np.searchsorted(stamps, sighted)
-    return bool(np.any(ok & (2 * count >= scans)))
+    """Whether the object was seen standing for ``still_s`` seconds (``sighted`` and
+    ``stamps`` sorted): seen at the start and again at the end of such a span, and in at
+    least half the log's scans of it. Not a few stray returns (a beam split on an edge)
+    that come back now and then, nor a slow walker's fragment seen still for a moment."""
+    end = np.searchsorted(sighted, sighted + still_s)  # first sighting still_s later
+    ok = end < len(sighted)
+    i, j = np.flatnonzero(ok), end[ok]
+    scans = np.searchsorted(stamps, sighted[j], side="right") - np.searchsorted(stamps, sighted[i])
+    return bool(np.any(2 * (j - i + 1) >= scans))
 
 
 def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: float
