@@ -159,10 +159,7 @@ class CarmenReader:
         if not any_line:
             raise InputError(name, "empty log: no records at all")
         buffer = self._odometry_buffer
-        yield from self._emit_ready(buffer.finish())
-        if buffer.backwards and self._kind not in POSED_KINDS:
-            self.stats.warn("ODOM time stamp goes backwards (record dropped)",
-                            buffer.first_backwards_line, buffer.backwards)
+        yield from self._emit_ready(buffer.finish(report=self._kind not in POSED_KINDS))
         if self.stats.scans == 0:
             seen = ", ".join(f"{k}×{v}" for k, v in sorted(self.stats.records.items()))
             raise InputError(name, f"no {'/'.join(self._kinds)} records for laser "
@@ -369,7 +366,7 @@ class CarmenReader:
             return
         if self._kind in POSED_KINDS:
             return  # the scans carry their own odometry
-        # Backwards stamps are reported at the end, and only if the chosen laser needs ODOM.
+        # Stamps going backwards are reported at the end, if the chosen laser needs ODOM.
         yield from self._emit_ready(self._odometry_buffer.add_odometry(
             stamp, Pose2D(*map(float, pose)), self._line))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from dynslam_cli.geometry import interpolate
 from dynslam_cli.types import Pose2D
@@ -18,12 +19,18 @@ class OdometryBuffer:
     A scan waits until an odometry record at or after its time arrives, then gets the pose
     interpolated between the two records around it; scans after the last record get the last
     pose (a counted warning). Memory holds only the scans between two odometry records.
-    Odometry going backwards in time is dropped and counted (``backwards``)."""
+
+    Odometry whose stamp goes backwards is the log's clock stepping back (records kept in
+    the order they were made, stamped by a clock that jumped): the scans waiting for later
+    odometry get the last pose, and interpolation starts again from that record (counted:
+    ``backwards``). So a scan older than the odometry before it waits for the next record:
+    if the clock stepped back, it is paired on the new clock; if not, it gets the pose
+    before it (a counted warning). Scans come out in the order they went in."""
 
     def __init__(self, stats: ReadStats) -> None:
         self.stats = stats
         self._odom: deque[tuple[float, Pose2D]] = deque(maxlen=2)
-        self._waiting: deque[tuple[float, int, object]] = deque()
+        self._waiting: deque[_Waiting] = deque()
         self.backwards = 0
         self.first_backwards_line = 0
         self.records = 0
@@ -33,33 +40,45 @@ class OdometryBuffer:
         if self._odom and stamp < self._odom[-1][0]:
             self.backwards += 1
             self.first_backwards_line = self.first_backwards_line or line
-            return
+            last, last_pose = self._odom[-1]
+            for w in self._waiting:
+                if not w.paired and w.stamp >= last:
+                    w.pose, w.paired = last_pose, True
+            self._odom.clear()
+        else:
+            for w in self._waiting:
+                if not w.paired and self._odom and w.stamp < self._odom[0][0]:
+                    w.pose, w.paired = self._at(w.stamp, w.line), True
         self.records += 1
         self._odom.append((stamp, pose))
         yield from self._flush(final=False)
 
     def add_scan(self, stamp: float, payload: object, line: int = 0
                  ) -> Iterator[tuple[object, Pose2D | None, int]]:
-        self._waiting.append((stamp, line, payload))
+        self._waiting.append(_Waiting(stamp, line, payload))
         yield from self._flush(final=False)
 
-    def finish(self) -> Iterator[tuple[object, Pose2D | None, int]]:
-        """The scans still waiting; their pose is None if there was no odometry at all."""
+    def finish(self, report: bool = True) -> Iterator[tuple[object, Pose2D | None, int]]:
+        """The scans still waiting; their pose is None if there was no odometry at all.
+        Odometry stamps that went backwards are a counted warning if ``report``."""
         yield from self._flush(final=True)
+        if self.backwards and report:
+            self.stats.warn("odometry time stamp goes backwards (interpolation starts again "
+                            "from that record)", self.first_backwards_line, self.backwards)
 
     def _flush(self, final: bool) -> Iterator[tuple[object, Pose2D | None, int]]:
+        """The scans, from the first, that have their pose (all of them if ``final``)."""
         while self._waiting:
-            stamp, line, payload = self._waiting[0]
-            if not self._odom:
-                if not final:
+            w = self._waiting[0]
+            if not w.paired and self._odom:
+                t0, t1 = self._odom[0][0], self._odom[-1][0]
+                if not final and not t0 <= w.stamp <= t1:
                     return
-                pose = None
-            elif stamp > self._odom[-1][0] and not final:
+                w.pose = self._at(w.stamp, w.line)
+            elif not w.paired and not final:
                 return
-            else:
-                pose = self._at(stamp, line)
             self._waiting.popleft()
-            yield payload, pose, line
+            yield w.payload, w.pose, w.line
 
     def _at(self, stamp: float, line: int) -> Pose2D:
         (t0, p0), (t1, p1) = self._odom[0], self._odom[-1]
@@ -72,3 +91,14 @@ class OdometryBuffer:
                 self.stats.warn("scan older than the odometry before it: odometry held", line)
             return p0
         return interpolate(p0, p1, (stamp - t0) / (t1 - t0))
+
+
+@dataclass
+class _Waiting:
+    """A scan waiting for its odometry; ``paired`` once its pose is decided."""
+
+    stamp: float
+    line: int
+    payload: object
+    pose: Pose2D | None = None
+    paired: bool = False

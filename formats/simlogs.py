@@ -66,8 +66,9 @@ def write_player(path: Path, steps: Iterable[SimStep], laser: LaserModel) -> int
     return n
 
 
-def _messages(ts: Any, s: SimStep, laser: LaserModel) -> tuple[Any, Any, int]:
-    """(LaserScan, Odometry, stamp ns) for one step, built from typestore ``ts``."""
+def _messages(ts: Any, s: SimStep, laser: LaserModel, n: int) -> tuple[Any, Any, int]:
+    """(LaserScan, Odometry, stamp ns) for step ``n``, built from typestore ``ts`` (ROS 1:
+    ``header.seq`` counts the steps, as a publisher numbers its messages)."""
     t = ts.types
     ns = round((EPOCH_S + s.stamp) * 1e9)
     time = t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
@@ -76,7 +77,7 @@ def _messages(ts: Any, s: SimStep, laser: LaserModel) -> tuple[Any, Any, int]:
     header = t["std_msgs/msg/Header"]
     hdr = {"stamp": time}
     if "seq" in header.__dataclass_fields__:
-        hdr["seq"] = 0
+        hdr["seq"] = n
     scan = t["sensor_msgs/msg/LaserScan"](
         header=header(**hdr, frame_id="laser"), angle_min=-fov / 2, angle_max=fov / 2,
         angle_increment=fov / max(laser.beams - 1, 1), time_increment=0.0, scan_time=0.1,
@@ -123,7 +124,7 @@ def _write_bag(w: Any, ts: Any, serialize: Any, steps: Iterable[SimStep],
     co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
     n = 0
     for s in steps:
-        scan, odom, ns = _messages(ts, s, laser)
+        scan, odom, ns = _messages(ts, s, laser, n)
         w.write(co, ns, serialize(odom, "nav_msgs/msg/Odometry"))
         w.write(cs, ns, serialize(scan, "sensor_msgs/msg/LaserScan"))
         n += 1
@@ -148,7 +149,7 @@ def write_mcap_ros1(path: Path, steps: Iterable[SimStep], laser: LaserModel) -> 
                                        ts.generate_msgdef(name)[0].encode())
             ids[topic] = w.register_channel(topic, "ros1", schema)
         for s in steps:
-            scan, odom, ns = _messages(ts, s, laser)
+            scan, odom, ns = _messages(ts, s, laser, n)
             w.add_message(ids["/odom"], log_time=ns, publish_time=ns, sequence=n,
                           data=ts.serialize_ros1(odom, "nav_msgs/msg/Odometry"))
             w.add_message(ids["/scan"], log_time=ns, publish_time=ns, sequence=n,

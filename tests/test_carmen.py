@@ -270,6 +270,21 @@ def test_nonfinite_pose_skips_scan(tmp_path):
     assert len(scans) == 1 and stats.skipped["pose is NaN or infinite"] == 1
 
 
+def test_odometry_clock_stepping_back_restarts_interpolation(tmp_path):
+    """Records written in the order they were made, stamped by a clock that stepped back
+    by a second: the scans after the step are paired with the odometry after it."""
+    text = ("ODOM 0 0 0 0 0 0 1.0 h 1.0\n"
+            "RAWLASER1 0 -1.5 3.0 1.5 20 0.01 0 3 1 2 3 0 1.5 h 1.5\n"
+            "ODOM 2 0 0 0 0 0 2.0 h 2.0\n"
+            "ODOM 3 0 0 0 0 0 1.1 h 1.1\n"
+            "RAWLASER1 0 -1.5 3.0 1.5 20 0.01 0 3 1 2 3 0 1.35 h 1.35\n"
+            "ODOM 4 0 0 0 0 0 1.6 h 1.6\n")
+    _, scans, stats = read(write(tmp_path, text))
+    assert [s.odom.x for s in scans] == [pytest.approx(1.0), pytest.approx(3.5)]
+    assert stats.warnings["odometry time stamp goes backwards (interpolation starts again "
+                          "from that record)"] == 1
+
+
 def test_time_going_backwards_is_kept_and_counted(tmp_path):
     _, scans, stats = read(write(tmp_path, flaser(t=5) + flaser(t=3) + flaser(t=3)))
     assert [s.stamp for s in scans] == [5, 3, 3]
