@@ -205,16 +205,14 @@ class EkfConfig:
     landmark map fuses the two, and the pose graph closes the loop) ..."""
     keep_observations: int = 5
     """... and is kept in the landmark map if it was seen at least this often."""
-    robocentric: bool = False
+    robocentric: bool = True
     """After each scan the filter is conditioned on the robot's pose (a robocentric filter:
     :meth:`dynslam_cli.localization.ekf.Ekf.condition_on_robot`): its covariance keeps what
     the robot does not know of the landmarks around it, not the drift since the first scan
     (the pose graph's to correct), and a landmark's covariance in landmarks.csv is its
-    uncertainty relative to the robot that saw it. With the drift kept (false, the
-    default), a heading a few degrees uncertain makes re-observed corners move the robot
-    sideways: on FR079 1 m within 5 s while it turns in place. Off by default for now: in
-    the hall world with drifting odometry it reports a slow walker seen for 2.2 s as an
-    object that appeared (the event tests' 95% precision)."""
+    uncertainty relative to the robot that saw it. With the drift kept (false, the default
+    before), a heading a few degrees uncertain makes re-observed corners move the robot
+    sideways: on FR079 1 m within 5 s while it turns in place."""
     noise: NoiseModel = field(default_factory=NoiseModel)
 
     @property

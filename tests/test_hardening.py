@@ -356,8 +356,8 @@ def invalid_scans_log(tmp_path, fmt: str, kind: str, every: int, monkeypatch) ->
     made = getattr(simlogs._messages, "original", simlogs._messages)
     count = iter(range(10 ** 6))
 
-    def messages(ts, step, laser):
-        scan, odom, ns = made(ts, step, laser)
+    def messages(ts, step, laser, n):
+        scan, odom, ns = made(ts, step, laser, n)
         if next(count) % every == 0:
             scan = dataclasses.replace(scan, ranges=np.full(len(scan.ranges), value, np.float32),
                                        range_min=range_min, range_max=range_max)
