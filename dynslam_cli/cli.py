@@ -5,6 +5,7 @@ Heavy modules are imported inside the commands so ``dynslam --help`` starts fast
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -579,8 +580,13 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
               help="truth.json from 'dynslam simulate' (TARGET is an output folder).")
 @click.option("--relations", type=click.Path(path_type=Path),
               help="Kümmerle et al. relations file (TARGET is a folder or a .tum file).")
+@click.option("--relations-frame", "frame", metavar="X,Y", default="0,0",
+              callback=lambda _c, _p, v: _point(v), show_default=True,
+              help="Where on the robot the relations' poses are, metres in the "
+                   "trajectory's frame (the laser's mount, if they are of the laser).")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
-def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: bool) -> None:
+def evaluate(target: Path, truth: Path | None, relations: Path | None,
+             frame: tuple[float, float], as_json: bool) -> None:
     """Score an output folder (or trajectory) against ground truth.
 
     \b
@@ -590,7 +596,10 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
     true ones within 0.3 m: precision and recall of appeared and vacated, moving tracks in
     the walkers' loops.
     With --relations: the Kümmerle et al. (2009) relation metric (translational m,
-    rotational deg, mean ± std, plus squared errors and matched/unmatched counts).
+    rotational deg, mean ± std, plus squared errors and matched/unmatched counts), and
+    fitted_frame: the point on the robot whose relations match best, and the error there
+    (a relations file of another frame than the trajectory's shows as a large offset:
+    give it with --relations-frame if it is known).
 
     \b
     Examples:
@@ -605,13 +614,25 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None, as_json: 
 
         from dynslam_cli.job import score_output
 
-        report = score_output(target, truth, relations)
+        report = score_output(target, truth, relations, frame)
         if as_json:
             click.echo(json.dumps(report, indent=2, sort_keys=True))
         else:
             click.echo(_table(report))
 
     _guarded(work)
+
+
+def _point(text: str) -> tuple[float, float]:
+    """"X,Y" (metres) as two finite floats; else click's usage error."""
+    parts = text.split(",")
+    try:
+        x, y = (float(p) for p in parts) if len(parts) == 2 else (math.nan, math.nan)
+    except ValueError:
+        x = y = math.nan
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise click.BadParameter(f"{text!r} is not X,Y (two numbers, metres)")
+    return x, y
 
 
 def _table(report: dict[str, Any], indent: str = "") -> str:

@@ -520,14 +520,21 @@ def _score_landmarks(landmarks: list[Landmark], truth: dict[str, Any], objects: 
 
 
 # -- Kümmerle et al. (2009) relations -------------------------------------------------------
-def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float = 0.1
-                    ) -> dict[str, Any]:
+def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float = 0.1,
+                    frame: tuple[float, float] = (0.0, 0.0)) -> dict[str, Any]:
     """The relation metric as the Freiburg metricEvaluator reports it.
 
     ``relations`` rows: t1 t2 x y z roll pitch yaw (pose at t2 in the frame of t1). Each
     stamp is matched to the nearest estimated pose within ``max_dt``; the estimated relation
     inv(P1)·P2 minus the reference, component-wise (angle wrapped), gives the translational
     error sqrt(dx² + dy²) and the rotational error |dθ|.
+
+    ``frame``: where on the robot the relations' poses are, (x, y) metres in the
+    trajectory's frame (a laser mounted 0.1 m ahead of the wheels' centre: (0.1, 0), if the
+    relations are of the laser's poses and the trajectory of the robot's). The report's
+    ``fitted_frame`` is the (x, y) whose relations match best (:func:`fitted_frame`) and
+    the error there: far from ``frame`` when the two frames differ by a mount the log does
+    not state.
     """
     if not len(trajectory) or not len(relations):
         raise ScoreError(f"nothing to score: {len(trajectory)} poses, {len(relations)} relations")
@@ -545,13 +552,14 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
                          f"the trajectory's {_span(trajectory)}) have both poses within "
                          f"{max_dt:g} s: not the same run, or its stamps are shifted")
     p1, p2 = trajectory[have1[ok]], trajectory[have2[ok]]
-    rel = relations[ok]
+    rel = relations[ok][:, [2, 3, 7]]
     c, s = np.cos(p1[:, 3]), np.sin(p1[:, 3])
     dx_w, dy_w = p2[:, 1] - p1[:, 1], p2[:, 2] - p1[:, 2]
-    ex, ey = c * dx_w + s * dy_w, -s * dx_w + c * dy_w
-    eth = wrap_angles(p2[:, 3] - p1[:, 3])
-    trans = np.hypot(ex - rel[:, 2], ey - rel[:, 3])
-    rot = np.degrees(np.abs(wrap_angles(eth - rel[:, 7])))
+    est = np.column_stack((c * dx_w + s * dy_w, -s * dx_w + c * dy_w,
+                           wrap_angles(p2[:, 3] - p1[:, 3])))
+    trans = _translation_errors(seen_from(est, frame), rel)
+    rot = np.degrees(np.abs(wrap_angles(est[:, 2] - rel[:, 2])))
+    fit = fitted_frame(est, rel)
 
     def stats(v: np.ndarray) -> dict[str, float | None]:
         if not len(v):
@@ -560,5 +568,31 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
 
     return {"relations": len(relations), "matched": int(ok.sum()),
             "unmatched": int((~ok).sum()),
+            "frame": {"x_m": frame[0], "y_m": frame[1]},
             "translational_m": stats(trans), "translational_squared_m2": stats(trans ** 2),
-            "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2)}
+            "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2),
+            "fitted_frame": {"x_m": fit[0], "y_m": fit[1], "translational_m": stats(
+                _translation_errors(seen_from(est, fit), rel))}}
+
+
+def seen_from(est: np.ndarray, frame: tuple[float, float]) -> np.ndarray:
+    """Relations (rows x, y, θ: a pose in the frame of another) of the robot's centre, as
+    the frame at ``frame`` = (a, b) on the robot sees them: F⁻¹ · rel · F."""
+    (a, b), c, s = frame, np.cos(est[:, 2]), np.sin(est[:, 2])
+    return np.column_stack((est[:, 0] + a * (c - 1) - b * s, est[:, 1] + a * s + b * (c - 1),
+                            est[:, 2]))
+
+
+def fitted_frame(est: np.ndarray, rel: np.ndarray) -> tuple[float, float]:
+    """The frame (a, b) on the robot (metres in its frame) from which the estimated
+    relations ``est`` best match the reference ``rel`` (rows x, y, θ), least squares: their
+    translations are linear in (a, b) (:func:`seen_from`). (0, 0) if no relation turns."""
+    c, s = np.cos(est[:, 2]), np.sin(est[:, 2])
+    a = np.vstack((np.column_stack((c - 1, -s)), np.column_stack((s, c - 1))))
+    r = np.concatenate((rel[:, 0] - est[:, 0], rel[:, 1] - est[:, 1]))
+    ab = np.linalg.lstsq(a, r, rcond=None)[0] if np.abs(a).max() > 1e-9 else np.zeros(2)
+    return float(ab[0]), float(ab[1])
+
+
+def _translation_errors(est: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    return np.hypot(est[:, 0] - rel[:, 0], est[:, 1] - rel[:, 1])

@@ -143,10 +143,11 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     return summary, front.stats
 
 
-def score_output(target: Path, truth: Path | None = None, relations: Path | None = None
-                 ) -> dict[str, Any]:
+def score_output(target: Path, truth: Path | None = None, relations: Path | None = None,
+                 frame: tuple[float, float] = (0.0, 0.0)) -> dict[str, Any]:
     """The scores of an output folder (``trajectory.tum`` alone is enough for relations)
-    against a simulation's ``truth.json`` and the benchmark's relations: what ``dynslam
+    against a simulation's ``truth.json`` and the benchmark's relations (of the robot's
+    poses at ``frame``: see :func:`dynslam_cli.evaluate.relation_errors`): what ``dynslam
     evaluate`` prints and ``dynslam batch`` keeps, {"target", "truth"?, "relations"?}."""
     from dynslam_cli.errors import InputError
     from dynslam_cli.evaluate import MapThresholds, relation_errors, score_changes, score_run
@@ -175,7 +176,8 @@ def score_output(target: Path, truth: Path | None = None, relations: Path | None
             events = _read_table(folder / "changes.csv", read_changes)
             report["truth"]["changes"] = score_changes(events, trajectory, true)
     if relations is not None:
-        report["relations"] = relation_errors(read_tum(tum), read_relations(relations))
+        report["relations"] = relation_errors(read_tum(tum), read_relations(relations),
+                                              frame=frame)
     return report
 
 

@@ -131,6 +131,44 @@ def test_relation_metric_on_hand_computed_case():
     assert r["translational_squared_m2"]["mean"] == pytest.approx(0.125)
 
 
+def test_relations_of_a_laser_mounted_ahead_score_in_its_frame_and_the_fit_finds_it(cli,
+                                                                                  tmp_path):
+    """Relations of the poses of a laser 0.1 m ahead of (and 0.02 m left of) the robot's
+    centre, whose trajectory is the centre's: the robot turning in place moves the laser
+    on an arc, so scored in the centre's frame they are off; with --relations-frame 0.1,0.02
+    they match, and fitted_frame finds the mount from the relations alone."""
+    rng = np.random.default_rng(0)
+    t = np.arange(200.0)
+    traj = np.column_stack((t, np.cumsum(rng.uniform(0, 0.3, 200)),
+                            np.cumsum(rng.uniform(-0.1, 0.1, 200)),
+                            np.cumsum(rng.uniform(-0.5, 0.5, 200))))
+    mount = (0.1, 0.02)
+    laser = traj.copy()
+    laser[:, 1] += mount[0] * np.cos(traj[:, 3]) - mount[1] * np.sin(traj[:, 3])
+    laser[:, 2] += mount[0] * np.sin(traj[:, 3]) + mount[1] * np.cos(traj[:, 3])
+    rows = []
+    for i in range(0, 190, 3):
+        a, b = laser[i], laser[i + 7]
+        c, s = math.cos(a[3]), math.sin(a[3])
+        dx, dy = b[1] - a[1], b[2] - a[2]
+        rows.append((a[0], b[0], c * dx + s * dy, -s * dx + c * dy, 0, 0, 0,
+                     math.remainder(b[3] - a[3], math.tau)))
+    rel = tmp_path / "laser.relations"
+    np.savetxt(rel, np.array(rows))
+    tum = tmp_path / "trajectory.tum"
+    q = np.column_stack((np.zeros((200, 2)), np.sin(traj[:, 3] / 2), np.cos(traj[:, 3] / 2)))
+    np.savetxt(tum, np.column_stack((traj[:, :3], np.zeros(200), q)))
+    centre = json.loads(cli("evaluate", tum, "--relations", rel, "--json").stdout)["relations"]
+    assert centre["translational_m"]["mean"] > 0.03
+    fit = centre["fitted_frame"]
+    assert (fit["x_m"], fit["y_m"]) == (pytest.approx(0.1, abs=1e-6), pytest.approx(0.02, abs=1e-6))
+    assert fit["translational_m"]["mean"] < 1e-6
+    r = cli("evaluate", tum, "--relations", rel, "--relations-frame", "0.1,0.02", "--json")
+    assert json.loads(r.stdout)["relations"]["translational_m"]["mean"] < 1e-6
+    r = cli("evaluate", tum, "--relations", rel, "--relations-frame", "0.1")
+    assert r.exit_code == 2 and "X,Y" in r.stderr
+
+
 def test_mit_csail_raw_odometry_relation_error(datasets):
     """The published raw-odometry figure for MIT CSAIL is 1.68 m."""
     from dynslam_formats import ReaderOptions, open_log
