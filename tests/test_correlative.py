@@ -308,3 +308,6 @@ def test_how_far_a_match_may_stray_from_the_odometry_follows_the_stated_slip_rat
     assert fused_pose(match, information, odometry, sigma, glitch=1e-3) is None
     kept = fused_pose(match, information, odometry, sigma, glitch=1e-12)
     assert kept is not None and 0.1 < kept[0].x < 0.15
+    # slip_test = "search": the search agreed with the odometry, so no slip is considered
+    sure = fused_pose(match, information, odometry, sigma, glitch=None)
+    assert sure is not None and sure[0].x == pytest.approx(kept[0].x)

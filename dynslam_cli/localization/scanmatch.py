@@ -131,7 +131,7 @@ def pose_difference(a: Pose2D, b: Pose2D) -> np.ndarray:
 
 
 def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
-               prior_sigma: Sequence[float], glitch: float
+               prior_sigma: Sequence[float], glitch: float | None
                ) -> tuple[Pose2D, np.ndarray] | None:
     """The match fused with the odometry's pose by their information, x_m + Σ Ω_o (x_o −
     x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻², and Σ. Where the scan
@@ -140,10 +140,12 @@ def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
     Gaussian with a floor of ``glitch`` times its peak (:func:`odometry_log_prior`), whose
     posterior peaks at the match alone where the two disagree by more than
     χ² = 2 ln(1/glitch) under their combined covariance (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m
-    (no inverse of a match that leaves a direction free)."""
+    (no inverse of a match that leaves a direction free). ``glitch`` None: the odometry
+    is known not to have slipped (the two are fused however far apart)."""
     cov = fused_covariance(information, prior_sigma)
     d = pose_difference(odometry, match)
-    if float(d @ (information - information @ cov @ information) @ d) > 2.0 * math.log(
+    if glitch is not None and float(
+            d @ (information - information @ cov @ information) @ d) > 2.0 * math.log(
             1.0 / glitch):
         return None
     step = cov @ (d / np.maximum(np.asarray(prior_sigma, dtype=float), 1e-6) ** 2)
@@ -326,8 +328,10 @@ class ScanMatcher:
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return Placed(post.pose, source, post.cov, agrees)
+        slipped_only_if_searched = agrees and cfg.correlative.slip_test == "search"
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
-                            cfg.correlative.odometry_glitch)
+                            None if slipped_only_if_searched
+                            else cfg.correlative.odometry_glitch)
                  if source == "matched" else None)
         if fused is not None:
             return Placed(fused[0], source, fused[1], agrees)
