@@ -8,7 +8,12 @@ moved by a uniform amount of at most ±1 mm and every pose coordinate (x, y) by 
 min, median, max and the spread (max − min) as a share of the median.
 
     python bench/stability.py [--logs mit,intel] [--modes full] [--copies 5]
+                              [--radish intel:moderate,aces:moderate,seattle:harsh]
                               [--method icp|correlative] [--config FILE] [--out FILE.json]
+
+``--radish NAME:LEVEL,...``: the same for Radish rows (bench/radish.py's log with its
+drifting odometry of that level, seed 0), full runs scored by ATE against the corrected
+poses; ``--logs ''`` runs those alone.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import argparse
 import gzip
 import json
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -25,7 +31,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from relations import DATA, LOGS, add_config_args, base_config, run
+from radish import ate, poses, prepared, radish_logs
+from relations import DATA, DYNSLAM, LOGS, add_config_args, base_config, run
+
+from dynslam_cli.config import to_toml
+from dynslam_formats.tum import read_tum
 
 RANGE_M = 1e-3
 POSE_M = 1e-5
@@ -59,19 +69,50 @@ def perturbed_copy(src: Path, dst: Path, seed: int) -> None:
             fout.write(perturbed_line(line, rng))
 
 
+def radish_ate(log: Path, name: str, config_file: Path, out: Path) -> float:
+    """ATE (m) of a full run of ``log`` (a copy of Radish row ``name``) against the
+    row's corrected poses."""
+    subprocess.run([*DYNSLAM, "process", str(log), "-o", str(out), "--force", "-q",
+                    "--config", str(config_file)], check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+    est = read_tum(out / "trajectory.tum")[:, 1:3]
+    return ate(est, poses(radish_logs()[name])[:, :2])
+
+
+def report(rows: list[dict], name: str, mode: str, errors: list[float]) -> None:
+    median = statistics.median(errors)
+    spread = (max(errors) - min(errors)) / median
+    rows.append({"log": name, "mode": mode, "trans_m": errors, "spread": spread})
+    print(f"{name:6} {mode:5} min {min(errors):.4f} median {median:.4f} max "
+          f"{max(errors):.4f} m  spread {100 * spread:.0f}% of the median  "
+          f"({', '.join(f'{e:.4f}' for e in errors)})", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs", default="mit,intel")
     ap.add_argument("--modes", default="full")
     ap.add_argument("--copies", type=int, default=5)
+    ap.add_argument("--radish", default="", help="Radish rows NAME:LEVEL,... (full runs, ATE)")
     add_config_args(ap, "stability.json")
     args = ap.parse_args()
     if not DATA.is_dir():
         sys.exit(f"no data sets at {DATA}")
     config = base_config(args)
-    rows = []
+    rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name in args.logs.split(","):
+        config_file = Path(tmp) / "config.toml"
+        config_file.write_text(to_toml(config))
+        for row in filter(None, args.radish.split(",")):
+            name, level = row.split(":")
+            src = prepared(name, level, 0)
+            errors = []
+            for seed in range(args.copies):
+                copy = Path(tmp) / f"{name}-{level}-{seed}.log"
+                perturbed_copy(src, copy, seed)
+                errors.append(radish_ate(copy, name, config_file, Path(tmp) / "out"))
+            report(rows, f"{name} {level}", "full", errors)
+        for name in filter(None, args.logs.split(",")):
             src = DATA / LOGS[name][0]
             if not src.name.endswith((".clf", ".clf.gz")):
                 sys.exit(f"{name}: only Carmen logs are perturbed here")
@@ -80,13 +121,8 @@ def main() -> None:
                 copies.append(Path(tmp) / f"{name}-{seed}.clf")
                 perturbed_copy(src, copies[-1], seed)
             for mode in args.modes.split(","):
-                errors = [run(name, mode, config, Path(tmp), log)["trans_m"] for log in copies]
-                median = statistics.median(errors)
-                spread = (max(errors) - min(errors)) / median
-                rows.append({"log": name, "mode": mode, "trans_m": errors, "spread": spread})
-                print(f"{name:6} {mode:5} min {min(errors):.4f} median {median:.4f} max "
-                      f"{max(errors):.4f} m  spread {100 * spread:.0f}% of the median  "
-                      f"({', '.join(f'{e:.4f}' for e in errors)})", flush=True)
+                report(rows, name, mode,
+                       [run(name, mode, config, Path(tmp), log)["trans_m"] for log in copies])
     args.out.write_text(json.dumps(rows, indent=1) + "\n")
 
 
