@@ -174,20 +174,20 @@ def header_seq(typestore: Any, msgtype: str, raw: bytes) -> int | None:
     return int(struct.unpack_from("<I", raw)[0])
 
 
-def publication_order(messages: Iterable[tuple[Hashable, int | None, float, Any]],
-                      stats: ReadStats, window: int = REORDER_WINDOW) -> Iterator[Any]:
-    """The items of (connection, seq, time, item) tuples given in log order, each
-    connection's in the order its publisher numbered them (``seq``; None: as logged), the
-    connections merged by ``time`` (of each one's next item). Items come out ``window``
-    messages late; a log in order comes out as it is. A seq that falls back by more than
-    ``window`` is a publisher that restarted: its count begins anew after what came before.
-    Messages logged before ones sent earlier are a counted warning."""
-    heaps: dict[Hashable, list[tuple[tuple[int, int], float, int, Any]]] = {}
+def publication_order(messages: Iterable[tuple[Hashable, int | None, Any]], stats: ReadStats,
+                      window: int = REORDER_WINDOW) -> Iterator[Any]:
+    """The items of (connection, seq, item) triples given in log order, each connection's
+    in the order its publisher numbered them (``seq``; None: as logged). An item comes out
+    ``window`` messages late, in the place the log gives its connection's next message, so
+    the connections stay interleaved as logged and a log in order comes out as it is. A seq
+    that falls back by more than ``window`` is a publisher that restarted: its count begins
+    anew after what came before. Messages logged before ones sent earlier are a counted
+    warning."""
+    heaps: dict[Hashable, list[tuple[tuple[int, int], int, Any]]] = {}
     top: dict[Hashable, tuple[int, int]] = {}  # (restarts, highest seq) of each connection
+    slots: deque[Hashable] = deque()  # the connection of each message not yet given out
     early = 0
-
-    slots: deque[Hashable] = deque()
-    for n, (stream, seq, time, item) in enumerate(messages):
+    for n, (stream, seq, item) in enumerate(messages):
         if seq is None:
             key = (0, n)
         else:
@@ -197,12 +197,12 @@ def publication_order(messages: Iterable[tuple[Hashable, int | None, float, Any]
             early += seq < high
             key = (restarts, seq)
             top[stream] = (restarts, max(high, seq))
-        heapq.heappush(heaps.setdefault(stream, []), (key, time, n, item))
+        heapq.heappush(heaps.setdefault(stream, []), (key, n, item))
         slots.append(stream)
         if len(slots) > window:
-            yield heapq.heappop(heaps[slots.popleft()])[3]
+            yield heapq.heappop(heaps[slots.popleft()])[2]
     while slots:
-        yield heapq.heappop(heaps[slots.popleft()])[3]
+        yield heapq.heappop(heaps[slots.popleft()])[2]
     if early:
         stats.warn("messages logged before ones their publisher sent earlier (ROS 1 "
                    "header.seq): read in the order they were sent", count=early)
@@ -355,7 +355,7 @@ class RosbagsReader:
         def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
             chosen = [c for c in bag.connections if c.topic in wanted]
             found = ((c.id, None if bag.is2 else header_seq(bag.typestore, c.msgtype, raw),
-                      t, (c, raw)) for c, t, raw in bag.messages(connections=chosen))
+                      (c, raw)) for c, _, raw in bag.messages(connections=chosen))
             for conn, raw in publication_order(found, self.stats):
                 yield conn.topic, conn.msgtype, bag.deserialize(raw, conn.msgtype)
 
@@ -382,9 +382,8 @@ class RosbagsReader:
         store = typestore_of(definitions)
 
         def messages(wanted: set[str]) -> Iterator[tuple[str, str, Any]]:
-            found = ((conn, header_seq(store, conn.msgtype, raw), n, (conn, raw))
-                     for n, (conn, raw) in enumerate(chunk_messages(path, RecordWalk()))
-                     if conn.topic in wanted)  # (time: file order)
+            found = ((conn, header_seq(store, conn.msgtype, raw), (conn, raw))
+                     for conn, raw in chunk_messages(path, RecordWalk()) if conn.topic in wanted)
             for conn, raw in publication_order(found, self.stats):
                 yield conn.topic, conn.msgtype, store.deserialize_ros1(raw, conn.msgtype)
 
