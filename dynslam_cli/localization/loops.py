@@ -268,7 +268,7 @@ class LoopCloser:
         self.attempts = 0
         self._last_attempt_m = -math.inf
         self._links = Links()  # the graph, for its distances
-        self._fields: OrderedDict[int, LikelihoodField] = OrderedDict()
+        self._fields: OrderedDict[tuple[int, int], LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
         self._chain = (Pose2D(), np.zeros((3, 3)), 0)  # since the last node: motion, its
         # covariance, scans (chain_information = "matched")
@@ -376,7 +376,7 @@ class LoopCloser:
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
             return False  # a corridor: it could be anywhere along it
-        field = self._field(i)
+        field = self._field(i, bisect.bisect_right(self.path, self.path[k] - cfg.min_travel_m))
         guess = relative(self.pose(i), self.pose(k))
         match = correlative_match(field, query, guess, radius, window_deg)
         if (match.score < cfg.min_score
@@ -473,16 +473,18 @@ class LoopCloser:
         return np.concatenate([transform_points(relative(ref, self.pose(n)), self.points[n])
                                for n in nodes])
 
-    def _field(self, i: int) -> LikelihoodField:
-        """Node i's submap as a likelihood field (cached)."""
-        cached = self._fields.get(i)
+    def _field(self, i: int, end: int) -> LikelihoodField:
+        """Node i's submap as a likelihood field (cached): the scans of ``submap_nodes``
+        nodes each side of it, none from node ``end`` on (the stretch just driven, whose
+        poses carry the drift the closure is to measure)."""
+        key = (i, min(end, i + self.cfg.submap_nodes + 1))
+        cached = self._fields.get(key)
         if cached is not None:
-            self._fields.move_to_end(i)
+            self._fields.move_to_end(key)
             return cached
-        m = self.cfg.submap_nodes
-        pts = self._submap(i, range(max(0, i - m), min(len(self.local_poses), i + m + 1)))
+        pts = self._submap(i, range(max(0, i - self.cfg.submap_nodes), key[1]))
         field = likelihood_field(pts)
-        self._fields[i] = field
+        self._fields[key] = field
         if len(self._fields) > 8:
             self._fields.popitem(last=False)
         return field
