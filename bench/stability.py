@@ -69,14 +69,13 @@ def perturbed_copy(src: Path, dst: Path, seed: int) -> None:
             fout.write(perturbed_line(line, rng))
 
 
-def radish_ate(log: Path, name: str, config_file: Path, out: Path) -> float:
-    """ATE (m) of a full run of ``log`` (a copy of Radish row ``name``) against the
-    row's corrected poses."""
+def radish_ate(log: Path, truth: np.ndarray, config_file: Path, out: Path) -> float:
+    """ATE (m) of a full run of ``log`` (a copy of a Radish row) against the row's
+    corrected positions ``truth``."""
     subprocess.run([*DYNSLAM, "process", str(log), "-o", str(out), "--force", "-q",
                     "--config", str(config_file)], check=True, stdout=subprocess.DEVNULL,
                    stderr=subprocess.DEVNULL)
-    est = read_tum(out / "trajectory.tum")[:, 1:3]
-    return ate(est, poses(radish_logs()[name])[:, :2])
+    return ate(read_tum(out / "trajectory.tum")[:, 1:3], truth)
 
 
 def report(rows: list[dict], name: str, mode: str, errors: list[float]) -> None:
@@ -105,12 +104,12 @@ def main() -> None:
         config_file.write_text(to_toml(config))
         for row in filter(None, args.radish.split(",")):
             name, level = row.split(":")
-            src = prepared(name, level, 0)
+            src, truth = prepared(name, level, 0), poses(radish_logs()[name])[:, :2]
             errors = []
             for seed in range(args.copies):
                 copy = Path(tmp) / f"{name}-{level}-{seed}.log"
                 perturbed_copy(src, copy, seed)
-                errors.append(radish_ate(copy, name, config_file, Path(tmp) / "out"))
+                errors.append(radish_ate(copy, truth, config_file, Path(tmp) / "out"))
             report(rows, f"{name} {level}", "full", errors)
         for name in filter(None, args.logs.split(",")):
             src = DATA / LOGS[name][0]

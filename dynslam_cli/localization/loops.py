@@ -332,15 +332,15 @@ class LoopCloser:
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
         return self._links.shortest_paths([k], limit, targets=targets)
 
-    def _candidate(self, k: int) -> tuple[int, float] | None:
+    def _candidate(self, k: int, old: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
-        there is none. Candidates lie ``min_travel_m`` or more back along the path and within
-        their search radius (it grows with the graph distance) of node k's estimate; the
-        nearest is taken. The graph distances of the CANDIDATE_BATCH nearest are found
-        first, the others only if none of those is inside its radius: where a place was
-        revisited for hours, a search for all of them would visit most of the graph."""
+        there is none. Candidates are the nodes before ``old`` (``min_travel_m`` or more back
+        along the path) within their search radius (it grows with the graph distance) of
+        node k's estimate; the nearest is taken. The graph distances of the CANDIDATE_BATCH
+        nearest are found first, the others only if none of those is inside its radius:
+        where a place was revisited for hours, a search for all of them would visit most of
+        the graph."""
         cfg = self.cfg
-        old = bisect.bisect_right(self.path, self.path[k] - cfg.min_travel_m)
         if old == 0:
             return None
         xy = self.graph.poses[:old, :2]
@@ -365,7 +365,9 @@ class LoopCloser:
         cfg = self.cfg
         if self.path[k] - self._last_attempt_m < cfg.attempt_every_m:
             return False
-        found = self._candidate(k)
+        old = bisect.bisect_right(self.path, self.path[k] - cfg.min_travel_m)  # (nodes
+        # before it lie min_travel_m or more back along the path)
+        found = self._candidate(k, old)
         if found is None:
             return False
         self._last_attempt_m = self.path[k]
@@ -376,7 +378,7 @@ class LoopCloser:
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
             return False  # a corridor: it could be anywhere along it
-        field = self._field(i, bisect.bisect_right(self.path, self.path[k] - cfg.min_travel_m))
+        field = self._field(i, old)
         guess = relative(self.pose(i), self.pose(k))
         match = correlative_match(field, query, guess, radius, window_deg)
         if (match.score < cfg.min_score
