@@ -203,6 +203,15 @@ def main() -> None:
               help="Read the log and match scans in this process too (by default a second "
                    "process does that ahead of the filter, on another core; the results are "
                    "the same).")
+@click.option("--prior", type=click.Path(file_okay=False, path_type=Path), metavar="DIR",
+              help="An earlier session's output folder: the log is placed in its static map "
+                   "(searched over the whole map and every heading) and mapped on from it, "
+                   "in its frame, so the two folders overlay cell for cell. A log that "
+                   "cannot be placed, or fits two places alike, is an error.")
+@click.option("--initial-pose", metavar="X,Y,DEGREES", callback=lambda c, p, v: _pose(v),
+              help="With --prior: where the log starts in the prior map (metres, metres, "
+                   "degrees), for a place that looks like another; searched within "
+                   "[prior] initial_tolerance_m of it first.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
             topic: str | None, odom_topic: str | None, flaser_fov: float | None,
@@ -210,6 +219,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
             record: str | None, record_period: float | None, start_s: float | None,
             end_s: float | None, max_scans: int | None, no_read_ahead: bool,
+            prior: Path | None, initial_pose: tuple[float, float, float] | None,
             quiet: bool) -> None:
     """Run SLAM over LOG and write maps, landmarks and trajectory.
 
@@ -241,8 +251,13 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       dynslam process lasers.bag --topic /left_scan
       dynslam process long.bag --start 600 --end 900    # ten to fifteen minutes in
       dynslam process mit-csail.clf --record run.mcap   # then open it in Foxglove
+      dynslam process today.log --prior yesterday_dynslam   # in yesterday's map
     """
     from dynslam_cli.job import default_output
+
+    if initial_pose is not None and prior is None:
+        raise click.BadParameter("needs --prior (a pose in which map?)",
+                                 param_hint="'--initial-pose'")
 
     target = output if output is not None else default_output(log)
     overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
@@ -256,8 +271,16 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         check_target(target, force, log)
         options = ReaderOptions(**_reader(laser, topic, odom_topic, start_s, end_s, max_scans),
                                 fov_deg=config.laser.fov_deg)
+        session = None
+        if prior is not None:
+            from dynslam_cli.job import open_prior
+            from dynslam_cli.types import Pose2D
+
+            start = (None if initial_pose is None else
+                     Pose2D(initial_pose[0], initial_pose[1], math.radians(initial_pose[2])))
+            session = open_prior(prior, config, start)
         summary = _process(log, target, force, format_name, options, config, quiet,
-                           snapshots, not no_read_ahead)
+                           snapshots, not no_read_ahead, session)
         if not quiet:
             s = summary
             data = (f"{s['data_duration_s']:.1f} s of data" if s["data_duration_s"] is not None
@@ -269,14 +292,27 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
     _guarded(work)
 
 
+def _pose(text: str | None) -> tuple[float, float, float] | None:
+    """X,Y,DEGREES as three finite numbers."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise click.BadParameter(f"{text!r} is not X,Y,DEGREES (three numbers)")
+    return values  # type: ignore[return-value]
+
+
 def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
              config: Any, quiet: bool, snapshot_every: float | None,
-             read_ahead: bool) -> dict[str, Any]:
+             read_ahead: bool, prior: Any = None) -> dict[str, Any]:
     from dynslam_cli.job import process_log
 
     if quiet or not sys.stderr.isatty():  # no progress bar (and no tqdm import)
         summary, stats = process_log(log, target, force, options, config, format_name,
-                                     snapshot_every, read_ahead=read_ahead)
+                                     snapshot_every, read_ahead=read_ahead, prior=prior)
     else:
         tqdm = _progress_bar()
         name = Path(log).name
@@ -301,7 +337,8 @@ def _process(log: str, target: Path, force: bool, format_name: str | None, optio
                 bar.refresh()
 
             summary, stats = process_log(log, target, force, options, config, format_name,
-                                         snapshot_every, on_progress, read_ahead, on_phase)
+                                         snapshot_every, on_progress, read_ahead, on_phase,
+                                         prior)
     _report_warnings(summary["input"]["path"], stats)
     return summary
 

@@ -39,6 +39,7 @@ from dynslam_cli.sections import (
     LoopConfig,
     MapConfig,
     MatchConfig,
+    PriorConfig,
     RecordConfig,
     require,
 )
@@ -57,12 +58,13 @@ class Config:
     loop: LoopConfig = field(default_factory=LoopConfig)
     changes: ChangeConfig = field(default_factory=ChangeConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
+    prior: PriorConfig = field(default_factory=PriorConfig)
 
     def validate(self) -> Config:
         """Check value ranges (each section its own, then that the inverse models fit the
         grids' storage); returns self so calls chain."""
         for section in (self.map, self.laser, self.dynamic, self.ekf, self.corners,
-                        self.match, self.loop, self.changes, self.record):
+                        self.match, self.loop, self.changes, self.record, self.prior):
             section.check()
         m, d = self.map, self.dynamic
         require([(_storable(values), f"{name}: {_STORABLE}") for name, values in (

@@ -23,9 +23,10 @@ from dynslam_cli.config import Config
 from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, run
+from dynslam_cli.prior import PriorMap, PriorSession
 from dynslam_cli.readahead import ForkedFrontEnd, open_front_end
 from dynslam_cli.result import SlamResult
-from dynslam_cli.types import Scan
+from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.source import COMPRESSED_SUFFIXES
 
 LOG_SUFFIXES = (*COMPRESSED_SUFFIXES, ".clf", ".log", ".gfs", ".bag", ".db3", ".mcap")
@@ -49,12 +50,13 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                 format_name: str | None = None, snapshot_every: float | None = None,
                 on_progress: Callable[[int, int, int], None] | None = None,
                 read_ahead: bool = True,
-                on_phase: Callable[[str, int, int], None] | None = None
-                ) -> tuple[dict[str, Any], Any]:
+                on_phase: Callable[[str, int, int], None] | None = None,
+                prior: PriorSession | None = None) -> tuple[dict[str, Any], Any]:
     """Process ``log`` into ``target``; returns (summary, the reader's ReadStats).
     ``on_progress(bytes_done, bytes_total, scans)`` is called every few scans, then
     ``on_phase(what, done, total)`` through the final work. ``read_ahead``: read
-    and measure the scans in a second process (on Linux; see dynslam_cli.readahead)."""
+    and measure the scans in a second process (on Linux; see dynslam_cli.readahead);
+    ``prior``: start from an earlier session's map (see :func:`open_prior`)."""
     from dynslam_formats import open_log
     from dynslam_formats.outdir import (
         OUTPUT_FILES,
@@ -92,7 +94,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
 
             result = run(front.scans(), config, on_scan, front,
                          online_dynamic=snapshots is not None or recording is not None,
-                         on_phase=on_phase)
+                         on_phase=on_phase, prior=prior)
             if snapshots is not None:
                 snapshots.finish(result)
             recorded = recording.finish(result) if recording is not None else None
@@ -141,6 +143,19 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             on_phase("writing the outputs", 0, 0)
         write_results(tmp, result, config.map, summary)
     return summary, front.stats
+
+
+def open_prior(folder: Path, config: Config, initial: Pose2D | None = None) -> PriorSession:
+    """An earlier session's output folder as the start of a run (``--prior``): its static
+    map, and ``initial``, where the user says the log starts in it (or None)."""
+    from dynslam_cli.errors import InputError
+    from dynslam_formats.mapfile import read_map
+
+    if not (folder / "static.yaml").is_file():
+        raise InputError(str(folder), "not a dynslam output folder (no static.yaml)")
+    s = read_map(folder / "static.yaml")
+    prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh)
+    return PriorSession(prior, config.map, config.prior, config.match, initial)
 
 
 def score_output(target: Path, truth: Path | None = None, relations: Path | None = None,

@@ -26,6 +26,7 @@ from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.mapping.dynamic import DynamicMapper
 from dynslam_cli.mapping.grid import GridStack
+from dynslam_cli.prior import PriorSession
 from dynslam_cli.result import Landmark, SlamResult, landmarks_of
 from dynslam_cli.scanstore import ScanStore, remap
 from dynslam_cli.types import Pose2D, Scan
@@ -43,8 +44,10 @@ class DynamicSlam:
     that has measured it already) or, by default, is measured here."""
 
     def __init__(self, config: Config, front: MeasuredScans | None = None,
-                 online_dynamic: bool = True) -> None:
+                 online_dynamic: bool = True, prior: PriorSession | None = None) -> None:
+        """``prior``: start from an earlier session's map, in its frame."""
         self.config = config
+        self._prior = prior
         self._ekf = config.ekf.filtered
         use_graph = config.loop.enabled and self._ekf
         # With the pose graph the maps are made again at the end; while running, the filter
@@ -61,8 +64,11 @@ class DynamicSlam:
 
     def _mapper(self, changes: bool, keep_dynamic: bool = True) -> DynamicMapper:
         c = self.config
-        return DynamicMapper(c.map, c.laser, c.dynamic, c.changes if changes else None,
-                             keep_dynamic)
+        mapper = DynamicMapper(c.map, c.laser, c.dynamic, c.changes if changes else None,
+                               keep_dynamic)
+        if self._prior is not None:
+            self._prior.seed(mapper.grids)
+        return mapper
 
     @property
     def pose(self) -> Pose2D:
@@ -90,10 +96,14 @@ class DynamicSlam:
         """Robot pose at the scan in the map frame (= the first scan's odometry frame):
         EKF-SLAM over corners, then the pose graph's correction of its drift."""
         if not self._ekf:
-            return scan.odom
+            return self.odometry_pose(scan)
         local, moved = self.track_with_ekf(scan)  # then the graph: a node every so often, a
         # loop closure where the robot is back in a known place, the scan placed by the graph
         return local if self._loops is None else self._loops.place(local, scan, moved)
+
+    def odometry_pose(self, scan: Scan) -> Pose2D:
+        """The scan's odometry in the map frame (on a prior map, the prior's)."""
+        return scan.odom if self._prior is None else self._prior.to_map(scan)
 
     def track_with_ekf(self, scan: Scan) -> tuple[Pose2D, tuple[Pose2D, np.ndarray] | None]:
         """Sec. 4: predict from the (scan-matched) motion, detect corners, associate,
@@ -103,8 +113,9 @@ class DynamicSlam:
         motion, corners = self._measure(scan)
         self._motion_sources[motion.source] += 1
         if self._slam is None:
-            self._slam = CornerSlam(scan.odom, self.config.ekf)
-            return scan.odom, None
+            start = self.odometry_pose(scan)
+            self._slam = CornerSlam(start, self.config.ekf)
+            return start, None
         slam, u = self._slam, motion.increment
         q = slam.motion_covariance(u, motion.cov, scan.has_odometry)  # (once: the EKF's and
         # the graph chain's)
@@ -161,6 +172,8 @@ class DynamicSlam:
                        scan_match_recoveries=m["recovered"], odometry_fallbacks=m["fallback"])
         if self._loops is not None:
             out.update(self._loops.counts())
+        if self._prior is not None:
+            out["prior"] = self._prior.report
         return out
 
     def landmarks(self, mapper: DynamicMapper | None = None) -> list[Landmark]:
@@ -187,11 +200,13 @@ def measurer(config: Config) -> ScanMeasurer:
 def run(scans: Iterable[Scan], config: Config,
         on_scan: Callable[[int, Scan, DynamicSlam], None] | None = None,
         front: MeasuredScans | None = None, online_dynamic: bool = True,
-        on_phase: Callable[[str, int, int], None] | None = None) -> SlamResult:
+        on_phase: Callable[[str, int, int], None] | None = None,
+        prior: PriorSession | None = None) -> SlamResult:
     """Run the whole stream through :class:`DynamicSlam`; ``on_scan(i, scan, slam)`` is called
     after each scan (progress, snapshots: those need ``online_dynamic``), ``on_phase`` in
-    the final work (see :meth:`DynamicSlam.result`)."""
-    slam = DynamicSlam(config, front, online_dynamic)
+    the final work (see :meth:`DynamicSlam.result`); ``prior``: on an earlier session's
+    map."""
+    slam = DynamicSlam(config, front, online_dynamic, prior)
     for i, scan in enumerate(scans):
         slam.step(scan)
         if on_scan is not None:

@@ -541,3 +541,38 @@ class RecordConfig:
              f"in the output folder), not {self.file!r}"),
         ])
 
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    """A log placed in an earlier session's map (``--prior DIR``): how sure the placement
+    of its first scan must be (see dynslam_cli.localization.globalsearch)."""
+
+    min_score: float = 0.5
+    """The first scan's end points must lie on the prior map's walls at least this well
+    (the mean of exp(−d²/2σ²) over them, d the distance to the nearest Occupied cell, σ 8
+    cm; 1 is every point on a wall): a log from another building is not placed."""
+    rival_share: float = 0.9
+    """A place elsewhere (``rival_m`` away, or turned ``rival_deg``) that scores this share
+    of the best makes the placement ambiguous (a symmetric room, a row of like offices):
+    an error, unless ``--initial-pose`` says which."""
+    rival_m: float = 1.0
+    """How far a rival place lies from the best (metres) ..."""
+    rival_deg: float = 30.0
+    """... or how far it is turned (degrees)."""
+    initial_tolerance_m: float = 1.0
+    """With ``--initial-pose``: the best place within this distance of the pose given
+    (metres) ..."""
+    initial_tolerance_deg: float = 30.0
+    """... and this turn (degrees) is taken, if it scores ``min_score``; otherwise the whole
+    map is searched, and a unique place found elsewhere is taken with a warning."""
+
+    def check(self) -> None:
+        require([
+            (0 < self.min_score < 1, "prior.min_score must be in (0, 1)"),
+            (0 < self.rival_share <= 1, "prior.rival_share must be in (0, 1]"),
+            (self.rival_m > 0 and 0 < self.rival_deg <= 180,
+             "prior.rival_m must be > 0 and rival_deg in (0, 180]"),
+            (self.initial_tolerance_m > 0 and 0 < self.initial_tolerance_deg <= 180,
+             "prior.initial_tolerance_m must be > 0 and initial_tolerance_deg in (0, 180]"),
+        ])

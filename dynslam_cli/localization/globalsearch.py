@@ -14,7 +14,6 @@ the place is: a symmetric room or a row of identical offices scores alike in two
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +27,6 @@ TOP_CELLS = 16  # the coarsest level splits the map's longer side into about thi
 GREEDY_STARTS = 8  # each level, this many best squares are followed down to a pose
 CHUNK = 1 << 22  # end-point lookups scored at a time (memory: 8 bytes each)
 
-Allowed = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -137,93 +135,160 @@ class Lattice:
                       float(math.remainder(self.thetas[th], math.tau)))
 
 
+class Region:
+    """Where the answer may lie: poses within ``distance_m`` and ``turn_deg`` of ``pose``
+    (``inside``), or those not within both (``not inside``: a rival elsewhere)."""
+
+    def __init__(self, lattice: Lattice, pose: Pose2D, distance_m: float, turn_deg: float,
+                 inside: bool) -> None:
+        self.lattice, self.pose, self.inside = lattice, pose, inside
+        self.distance_m, self.turn = distance_m, math.radians(turn_deg)
+
+    def may_hold(self, th: np.ndarray, col: np.ndarray, row: np.ndarray, span: int
+                 ) -> np.ndarray:
+        """Whether the square of ``span`` cells from each candidate's cell, at its heading,
+        may hold a pose of the region (exact for span 1)."""
+        field = self.lattice.field
+        res = field.resolution
+        x0 = field.origin[0] + col * res - self.pose.x  # the square, relative to the pose
+        y0 = field.origin[1] + row * res - self.pose.y
+        x1, y1 = x0 + (span - 1) * res, y0 + (span - 1) * res
+        turn = np.abs(np.remainder(self.lattice.thetas[th] - self.pose.theta + math.pi,
+                                   math.tau) - math.pi)
+        if self.inside:  # the square's nearest point is near enough
+            near = np.hypot(np.clip(0.0, x0, x1), np.clip(0.0, y0, y1))
+            return (near <= self.distance_m) & (turn <= self.turn)
+        far = np.hypot(np.maximum(np.abs(x0), np.abs(x1)), np.maximum(np.abs(y0), np.abs(y1)))
+        return (far >= self.distance_m) | (turn >= self.turn)
+
+
 def place(field: MapField, points: np.ndarray, min_score: float = 0.0,
-          exclusion_m: float = 1.0, exclusion_deg: float = 30.0, rival_share: float = 0.75
-          ) -> Placement:
+          rival_m: float = 1.0, rival_deg: float = 30.0, rival_share: float = 0.75,
+          near: tuple[Pose2D, float, float] | None = None) -> Placement:
     """The best pose (map frame) of a scan whose end points are ``points`` (N×2, robot
-    frame), over every cell of the map and every heading, and the best score of a pose at
-    least ``exclusion_m`` away or turned at least ``exclusion_deg`` from it (its rival).
-    Poses scoring below ``min_score`` are not looked for (the score 0 and no pose if none
-    reaches it), nor rivals below ``rival_share`` of the best (runner_up 0): the lower the
-    floors, the more of the map must be searched finely."""
+    frame), over every cell of the map and every heading (or, with ``near`` = (pose,
+    metres, degrees), within that of the pose), and the best score of a pose at least
+    ``rival_m`` away or turned at least ``rival_deg`` from it (its rival, searched over the
+    same region). Poses scoring below ``min_score`` are not looked for (the score 0 and no
+    pose if none reaches it), nor rivals below ``rival_share`` of the best (runner_up 0):
+    the lower the floors, the more of the map must be searched finely."""
     lattice = Lattice(field, np.asarray(points, dtype=float).reshape(-1, 2))
-    best = _branch_and_bound(lattice, None, min_score)
+    regions = [] if near is None else [Region(lattice, *near, inside=True)]
+    best = _branch_and_bound(lattice, regions, min_score)
     if best is None:
         return Placement(None, 0.0, 0.0)
     score, pose = best
-
-    def far(th: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
-        res = field.resolution
-        dx = field.origin[0] + col * res - pose.x
-        dy = field.origin[1] + row * res - pose.y
-        turn = np.abs(np.remainder(lattice.thetas[th] - pose.theta + math.pi, math.tau)
-                      - math.pi)
-        return (np.hypot(dx, dy) >= exclusion_m) | (turn >= math.radians(exclusion_deg))
-
-    second = _branch_and_bound(lattice, far, rival_share * score)
+    rival = Region(lattice, pose, rival_m, rival_deg, inside=False)
+    second = _branch_and_bound(lattice, [*regions, rival], rival_share * score)
     return Placement(pose, score, second[0] if second is not None else 0.0)
 
 
-def _branch_and_bound(lattice: Lattice, allowed: Allowed | None, floor: float
+def _branch_and_bound(lattice: Lattice, regions: list[Region], floor: float
                       ) -> tuple[float, Pose2D] | None:
-    """The best allowed pose scoring above ``floor``, and its score: every candidate of the
-    coarsest level is scored by its bound; level by level down, the squares whose bound
-    does not exceed the floor or the best pose found so far are dropped and the rest split
-    in four. ``allowed(th, col, row)`` (None: all) says which poses may be the answer."""
+    """The best pose of all the regions scoring above ``floor``, and its score: every
+    candidate of the coarsest level is scored by its bound; level by level down, the
+    squares whose bound does not exceed the floor or the best pose found so far are
+    dropped and the rest split in four."""
     field = lattice.field
     rows, cols = field.size
     pad, top = field.pad, field.top
-    span = 1 << top
-    th, row, col = np.meshgrid(np.arange(len(lattice.thetas)), np.arange(pad, pad + rows, span),
-                               np.arange(pad, pad + cols, span), indexing="ij")
-    th, col, row = th.ravel(), col.ravel(), row.ravel()
+    th, row, col = np.meshgrid(np.arange(len(lattice.thetas)),
+                               np.arange(pad, pad + rows, 1 << top),
+                               np.arange(pad, pad + cols, 1 << top), indexing="ij")
+    th, col, row = _within(regions, th.ravel(), col.ravel(), row.ravel(), 1 << top)
     bounds = lattice.scores(top, th, col, row)
     best: tuple[float, tuple[int, int, int]] | None = None
     for level in range(top, -1, -1):
         for i in np.argsort(bounds)[::-1][:GREEDY_STARTS]:
-            found = _descend(lattice, level, int(th[i]), int(col[i]), int(row[i]), allowed)
+            found = _descend(lattice, regions, level, int(th[i]), int(col[i]), int(row[i]))
             if found is not None and (best is None or found[0] > best[0]):
                 best = found
         keep = bounds > max(floor, best[0] if best is not None else floor)
         th, col, row, bounds = th[keep], col[keep], row[keep], bounds[keep]
         if level == 0 or not len(th):
             break
-        h = 1 << (level - 1)
-        th = np.repeat(th, 4)
-        col = np.repeat(col, 4) + np.tile([0, h, 0, h], len(col))
-        row = np.repeat(row, 4) + np.tile([0, 0, h, h], len(row))
-        inside = (col < pad + cols) & (row < pad + rows)
-        th, col, row = th[inside], col[inside], row[inside]
+        th, col, row = _split(lattice, regions, level, th, col, row)
         bounds = lattice.scores(level - 1, th, col, row)
     if len(th):  # the level-0 survivors: poses themselves, scored exactly
-        ok = np.ones(len(th), bool) if allowed is None else allowed(th, col, row)
-        if ok.any():
-            i = int(np.flatnonzero(ok)[np.argmax(bounds[ok])])
-            if best is None or bounds[i] > best[0]:
-                best = (float(bounds[i]), (int(th[i]), int(col[i]), int(row[i])))
+        i = int(np.argmax(bounds))
+        if best is None or bounds[i] > best[0]:
+            best = (float(bounds[i]), (int(th[i]), int(col[i]), int(row[i])))
     if best is None or best[0] <= floor:
         return None
     score, (t, c, r) = best
     return score, lattice.pose(t, c, r)
 
 
-def _descend(lattice: Lattice, level: int, th: int, col: int, row: int,
-             allowed: Allowed | None) -> tuple[float, tuple[int, int, int]] | None:
+def _within(regions: list[Region], th: np.ndarray, col: np.ndarray, row: np.ndarray,
+            span: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The candidates whose squares may hold a pose of every region."""
+    keep = np.ones(len(th), bool)
+    for region in regions:
+        keep &= region.may_hold(th, col, row, span)
+    return th[keep], col[keep], row[keep]
+
+
+def _split(lattice: Lattice, regions: list[Region], level: int, th: np.ndarray,
+           col: np.ndarray, row: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The four squares of the level below each square (those on the map and the
+    regions)."""
+    rows, cols = lattice.field.size
+    pad = lattice.field.pad
+    h = 1 << (level - 1)
+    th = np.repeat(th, 4)
+    col = np.repeat(col, 4) + np.tile([0, h, 0, h], len(col))
+    row = np.repeat(row, 4) + np.tile([0, 0, h, h], len(row))
+    inside = (col < pad + cols) & (row < pad + rows)
+    return _within(regions, th[inside], col[inside], row[inside], h)
+
+
+def _descend(lattice: Lattice, regions: list[Region], level: int, th: int, col: int,
+             row: int) -> tuple[float, tuple[int, int, int]] | None:
     """Follow the best child of a square down to a pose: a pose found cheaply, whose score
-    is a floor under which nothing needs looking at."""
-    field = lattice.field
-    rows, cols = field.size
-    pad = field.pad
+    is a floor under which nothing needs looking at (None if the square holds none of the
+    regions)."""
     while level > 0:
-        h = 1 << (level - 1)
-        c = np.array([col, col + h, col, col + h])
-        r = np.array([row, row, row + h, row + h])
-        ok = (c < pad + cols) & (r < pad + rows)
-        c, r = c[ok], r[ok]
-        s = lattice.scores(level - 1, np.full(len(c), th), c, r)
+        t, c, r = _split(lattice, regions, level, np.array([th]), np.array([col]),
+                         np.array([row]))
+        if not len(t):
+            return None
+        s = lattice.scores(level - 1, t, c, r)
         k = int(np.argmax(s))
         col, row, level = int(c[k]), int(r[k]), level - 1
-    if allowed is not None and not allowed(np.array([th]), np.array([col]), np.array([row]))[0]:
-        return None
     score = float(lattice.scores(0, np.array([th]), np.array([col]), np.array([row]))[0])
     return score, (th, col, row)
+
+
+def refine(occupied: np.ndarray, resolution: float, origin: tuple[float, float],
+           points: np.ndarray, pose: Pose2D, shift_m: float, turn: float) -> Pose2D:
+    """The lattice's pose made finer than a cell: the pose within ``shift_m`` and ``turn``
+    (radians) of ``pose`` at which the scan's end points lie best on the map's Occupied
+    cells blurred by the end points' spread (a wall drawn two cells thick peaks between
+    them, where the likelihood field's max over cells does not), by Powell's method on the
+    cubic-spline interpolation of the blur. ``occupied`` and ``origin`` as for
+    :class:`MapField`."""
+    from scipy.ndimage import gaussian_filter, map_coordinates, spline_filter
+    from scipy.optimize import minimize
+
+    reach = float(np.max(np.hypot(points[:, 0], points[:, 1]))) + shift_m + 4 * FIELD_SIGMA_M
+    c0 = max(0, math.floor((pose.x - reach - origin[0]) / resolution))
+    r0 = max(0, math.floor((pose.y - reach - origin[1]) / resolution))
+    c1 = min(occupied.shape[1], math.ceil((pose.x + reach - origin[0]) / resolution) + 1)
+    r1 = min(occupied.shape[0], math.ceil((pose.y + reach - origin[1]) / resolution) + 1)
+    blur = spline_filter(gaussian_filter(occupied[r0:r1, c0:c1].astype(float),
+                                         FIELD_SIGMA_M / resolution, mode="constant"))
+
+    def cost(v: np.ndarray) -> float:
+        x, y, th = pose.x + v[0], pose.y + v[1], pose.theta + v[2]
+        c, s = math.cos(th), math.sin(th)
+        px = x + c * points[:, 0] - s * points[:, 1]
+        py = y + s * points[:, 0] + c * points[:, 1]
+        at = [(py - origin[1]) / resolution - r0, (px - origin[0]) / resolution - c0]
+        return -float(np.mean(map_coordinates(blur, at, order=3, mode="constant",
+                                              prefilter=False)))
+
+    bounds = [(-shift_m, shift_m), (-shift_m, shift_m), (-turn, turn)]
+    best = minimize(cost, np.zeros(3), method="Powell", bounds=bounds,
+                    options={"xtol": 1e-4, "ftol": 1e-9})
+    v = best.x if best.fun <= cost(np.zeros(3)) else np.zeros(3)
+    return Pose2D(pose.x + v[0], pose.y + v[1], float(math.remainder(pose.theta + v[2], math.tau)))

@@ -221,6 +221,27 @@ class GridStack:
         flat = tile * TILE * TILE + (rows % TILE) * TILE + cols % TILE
         return np.where(tile >= 0, flat, -1)
 
+    def seed(self, name: str, rows: np.ndarray, cols: np.ndarray, values: np.ndarray) -> None:
+        """Set the layer's stored values (int16 steps) at world cells (rows, cols), listed
+        once each, as seen: an earlier session's map that this one starts from."""
+        if not len(rows):
+            return
+        r = self.resolution
+        self.ensure(cols.min() * r, rows.min() * r, (cols.max() + 0.5) * r,
+                    (rows.max() + 0.5) * r)
+        tr0, tc0 = self._table_origin
+        wanted = np.unique(np.column_stack((rows // TILE, cols // TILE)), axis=0)
+        new = wanted[self._table[wanted[:, 0] - tr0, wanted[:, 1] - tc0] < 0]
+        if self.tiles + len(new) > len(self.tile_rows):
+            self._grow_tiles(self.tiles + len(new) + 64)
+        ids = np.arange(self.tiles, self.tiles + len(new), dtype=np.int32)
+        self.tile_rows[ids], self.tile_cols[ids] = new[:, 0], new[:, 1]
+        self._table[new[:, 0] - tr0, new[:, 1] - tc0] = ids
+        self.tiles += len(new)
+        flat = self.flat_cells(rows, cols)
+        self.layers[name][flat] = values
+        self._listed[flat] = np.maximum(self._listed[flat], 1)
+
     def world_cells_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World (row, col) of the cells holding the points (x, y)."""
         r = self.resolution

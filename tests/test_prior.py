@@ -1,0 +1,140 @@
+"""A second session on a prior map: `dynslam process LOG --prior DIR`."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dynslam_cli.geometry import compose
+from dynslam_cli.simulate import LaserModel, OdometryNoise, World, simulate
+from dynslam_cli.types import Pose2D
+from dynslam_formats.mapfile import read_map
+from dynslam_formats.simlogs import write_carmen
+from dynslam_formats.tum import read_tum
+
+# A room with an alcove and a pillar: nothing symmetric, so a scan has one place in it.
+ROOM = np.array([[-4, -3, 6, -3], [6, -3, 6, 4], [6, 4, 1, 4], [1, 4, 1, 5.5],
+                 [1, 5.5, -1, 5.5], [-1, 5.5, -1, 4], [-1, 4, -4, 4], [-4, 4, -4, -3],
+                 [2, 0, 2.6, 0], [2.6, 0, 2.6, 0.4], [2.6, 0.4, 2, 0.4], [2, 0.4, 2, 0]],
+                float)
+ROUTE = [(-2.5, -1.8), (4.5, -1.8), (4.5, 2.5), (-2.5, 2.5)]
+# A square room with a pillar in each corner: four places look alike.
+SQUARE = np.array([[0, 0, 8, 0], [8, 0, 8, 8], [8, 8, 0, 8], [0, 8, 0, 0],
+                   [2, 2, 2.4, 2], [6, 2, 6, 2.4], [6, 6, 5.6, 6], [2, 6, 2, 5.6]], float)
+# Today's log's odometry starts in a frame of its own: 20 m and 135 degrees from the map's.
+ELSEWHERE = Pose2D(20.0, -7.0, math.radians(135.0))
+IDENTITY = Pose2D()
+
+
+def session(folder: Path, walls: np.ndarray, route: list, start: Pose2D,
+            odometry_frame: Pose2D = IDENTITY, seconds: float = 40.0) -> tuple[Path, list]:
+    """A simulated log of a drive round ``route`` from ``start``, its odometry exact but in
+    a frame of its own (each true pose q logged as odometry_frame ∘ q), and the true
+    poses."""
+    world = World("room", walls, route, start, speed=0.5)
+    steps, truth = simulate(world, seconds, 10.0, 0, noise=OdometryNoise().scaled(0.0))
+    moved = [dataclasses.replace(s, odom=compose(odometry_frame, s.odom)) for s in steps]
+    folder.mkdir(parents=True, exist_ok=True)
+    log = folder / "room.log"
+    with open(log, "w") as f:
+        write_carmen(f, moved, LaserModel(), "flaser", "room")
+    return log, truth.poses
+
+
+@pytest.fixture(scope="module")
+def yesterday(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first session's output folder: the room mapped from its own start pose."""
+    from click.testing import CliRunner
+
+    from dynslam_cli.cli import main
+
+    root = tmp_path_factory.mktemp("prior")
+    log, _ = session(root / "log1", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0))
+    out = root / "yesterday"
+    result = CliRunner().invoke(main, ["process", str(log), "-o", str(out), "-q"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_a_second_session_is_placed_in_the_prior_map_and_its_frame(tmp_path: Path, cli,
+                                                                   yesterday: Path) -> None:
+    # today the robot starts across the room, its odometry in another frame altogether
+    log, truth = session(tmp_path, ROOM, ROUTE[2:] + ROUTE[:2], Pose2D(4.5, 2.5, math.pi),
+                         odometry_frame=ELSEWHERE)
+    out = tmp_path / "today"
+    result = cli("process", log, "--prior", yesterday, "-o", out, "-q")
+    assert result.exit_code == 0, result.output
+    report = json.loads((out / "summary.json").read_text())["localization"]["prior"]
+    assert report["searched"] == "whole map" and report["score"] > 0.8
+    x, y, deg = report["start"]  # within a cell (from one scan that sees little along x)
+    assert math.hypot(x - 4.5, y - 2.5) < 0.05 and abs(math.remainder(deg - 180.0, 360.0)) < 0.5
+    # every pose in the prior's frame (= the truth's), with no alignment
+    poses = read_tum(out / "trajectory.tum")
+    error = np.hypot(poses[:, 1] - [p[1] for p in truth], poses[:, 2] - [p[2] for p in truth])
+    assert error.max() < 0.06
+    # the maps lie on the same lattice: the walls overlay cell for cell
+    a, b = read_map(yesterday / "static.yaml").grid, read_map(out / "static.yaml").grid
+    for origin in ((a.origin_x, b.origin_x), (a.origin_y, b.origin_y)):
+        assert abs((origin[0] - origin[1]) / a.resolution % 1.0 - 0.0) < 1e-6 or \
+            abs((origin[0] - origin[1]) / a.resolution % 1.0 - 1.0) < 1e-6
+
+
+def test_a_place_that_looks_like_another_needs_an_initial_pose(tmp_path: Path, cli) -> None:
+    route = [(1.2, 1.2), (6.8, 1.2), (6.8, 6.8), (1.2, 6.8)]
+    log1, _ = session(tmp_path / "a", SQUARE, route, Pose2D(1.2, 4.0, -math.pi / 2))
+    cli("process", log1, "-o", tmp_path / "first", "-q")
+    log2, _ = session(tmp_path / "b", SQUARE, route[1:] + route[:1],
+                      Pose2D(6.8, 1.2, math.pi / 2), odometry_frame=ELSEWHERE, seconds=10.0)
+    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "x", "-q")
+    assert result.exit_code == 1
+    assert "more than one place" in result.output and "--initial-pose" in result.output
+    assert len(result.output.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "y", "-q",
+                 "--initial-pose", "6.5,1.5,80")
+    assert result.exit_code == 0, result.output
+    x, y, _ = json.loads((tmp_path / "y" / "summary.json").read_text()
+                         )["localization"]["prior"]["start"]
+    assert math.hypot(x - 6.8, y - 1.2) < 0.05
+
+
+def test_an_initial_pose_far_off_is_corrected_by_the_whole_map(tmp_path: Path, cli,
+                                                               yesterday: Path) -> None:
+    log, _ = session(tmp_path, ROOM, ROUTE[2:] + ROUTE[:2], Pose2D(4.5, 2.5, math.pi),
+                     odometry_frame=ELSEWHERE, seconds=10.0)
+    result = cli("process", log, "--prior", yesterday, "-o", tmp_path / "o", "-q",
+                 "--initial-pose", "-2,0,90")  # 7 m and 90 degrees off
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "o" / "summary.json").read_text())["localization"]["prior"]
+    assert "whole map" in report["searched"] and "warning" in report
+    x, y, _ = report["start"]
+    assert math.hypot(x - 4.5, y - 2.5) < 0.05
+
+
+def test_a_log_from_another_place_is_not_placed(tmp_path: Path, cli, yesterday: Path) -> None:
+    route = [(1.2, 1.2), (6.8, 1.2), (6.8, 6.8), (1.2, 6.8)]
+    log, _ = session(tmp_path, SQUARE, route, Pose2D(1.2, 4.0, -math.pi / 2), seconds=10.0)
+    result = cli("process", log, "--prior", yesterday, "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 1
+    assert "fits nowhere" in result.output or "more than one place" in result.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_prior_must_be_an_output_folder_on_the_same_cells(tmp_path: Path, cli,
+                                                              yesterday: Path) -> None:
+    log, _ = session(tmp_path, ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0), seconds=2.0)
+    result = cli("process", log, "--prior", tmp_path, "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 1 and "not a dynslam output folder" in result.output
+    result = cli("process", log, "--prior", yesterday, "--resolution", "0.1", "-o",
+                 tmp_path / "o", "-q")
+    assert result.exit_code == 1 and "--resolution 0.05" in result.output
+    result = cli("process", log, "--initial-pose", "1,2,3", "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 2 and "needs --prior" in result.output
+    result = cli("process", log, "--prior", yesterday, "--initial-pose", "1,2", "-o",
+                 tmp_path / "o", "-q")
+    assert result.exit_code == 2 and "X,Y,DEGREES" in result.output
