@@ -70,6 +70,14 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     from dynslam_formats.tum import clock_stopped
 
     start = time.perf_counter()
+    if prior is not None and log != "-":  # placed from the log's first scans, read apart
+        if on_phase is not None:
+            on_phase("placing the log in the prior map", 0, 0)
+        first_source, _, first_reader = open_log(log, options, format_name)
+        try:
+            prior.place(first_reader.scans())
+        finally:
+            first_source.close()
     elsewhere = (recording_destination(config.record.file, target) if config.record.file
                  else None)
     source, entry, reader = open_log(log, options, format_name)
@@ -155,7 +163,8 @@ def open_prior(folder: Path, config: Config, initial: Pose2D | None = None) -> P
         raise InputError(str(folder), "not a dynslam output folder (no static.yaml)")
     s = read_map(folder / "static.yaml")
     prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh)
-    return PriorSession(prior, config.map, config.prior, config.match, initial)
+    return PriorSession(prior, config.map, config.prior, config.match, config.ekf.noise,
+                        initial)
 
 
 def score_output(target: Path, truth: Path | None = None, relations: Path | None = None,

@@ -560,6 +560,10 @@ class PriorConfig:
     """How far a rival place lies from the best (metres) ..."""
     rival_deg: float = 30.0
     """... or how far it is turned (degrees)."""
+    max_travel_m: float = 10.0
+    """Where the first scan alone fits more than one place (a corridor), the scans driven
+    after it are matched with it, put together by their odometry, up to this far (metres;
+    tried at each doubling of the distance)."""
     initial_tolerance_m: float = 1.0
     """With ``--initial-pose``: the best place within this distance of the pose given
     (metres) ..."""
@@ -573,6 +577,7 @@ class PriorConfig:
             (0 < self.rival_share <= 1, "prior.rival_share must be in (0, 1]"),
             (self.rival_m > 0 and 0 < self.rival_deg <= 180,
              "prior.rival_m must be > 0 and rival_deg in (0, 180]"),
+            (self.max_travel_m >= 0, "prior.max_travel_m must be >= 0"),
             (self.initial_tolerance_m > 0 and 0 < self.initial_tolerance_deg <= 180,
              "prior.initial_tolerance_m must be > 0 and initial_tolerance_deg in (0, 180]"),
         ])

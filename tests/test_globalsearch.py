@@ -81,3 +81,19 @@ def test_the_bound_of_each_level_is_above_every_pose_it_covers() -> None:
             fine = lattice.scores(0, np.full(span * span, th[i]), col[i] + dc.ravel(),
                                   row[i] + dr.ravel())
             assert fine.max() <= bound[i] + 1e-12
+
+
+def test_the_compiled_scores_are_the_mean_field_at_the_end_points() -> None:
+    grid, origin = occupancy(ROOM)
+    field = MapField(grid, RES, origin)
+    lattice = Lattice(field, scan_from(ROOM, Pose2D(1.0, 1.0, 0.5)))
+    rng = np.random.default_rng(2)
+    th = rng.integers(0, len(lattice.thetas), 50)
+    col = rng.integers(-20, field.levels[0].shape[1] + 20, 50)  # some points off the grid
+    row = rng.integers(-20, field.levels[0].shape[0] + 20, 50)
+    fine = field.levels[0]
+    r, c = lattice.dr[th] + row[:, None], lattice.dc[th] + col[:, None]
+    on = (r >= 0) & (r < fine.shape[0]) & (c >= 0) & (c < fine.shape[1])
+    expected = np.where(on, fine[np.clip(r, 0, fine.shape[0] - 1),
+                                 np.clip(c, 0, fine.shape[1] - 1)], 0.0).mean(axis=1)
+    assert np.allclose(lattice.scores(0, th, col, row), expected, rtol=0, atol=1e-12)

@@ -26,6 +26,10 @@ ROUTE = [(-2.5, -1.8), (4.5, -1.8), (4.5, 2.5), (-2.5, 2.5)]
 # A square room with a pillar in each corner: four places look alike.
 SQUARE = np.array([[0, 0, 8, 0], [8, 0, 8, 8], [8, 8, 0, 8], [0, 8, 0, 0],
                    [2, 2, 2.4, 2], [6, 2, 6, 2.4], [6, 6, 5.6, 6], [2, 6, 2, 5.6]], float)
+# A 30 m corridor, 2 m wide, with one alcove (2 m × 2 m) at 21-23 m: a scan of its plain
+# stretch fits anywhere along it.
+CORRIDOR = np.array([[0, -1, 30, -1], [0, 1, 21, 1], [21, 1, 21, 3], [21, 3, 23, 3],
+                     [23, 3, 23, 1], [23, 1, 30, 1], [0, -1, 0, 1], [30, -1, 30, 1]], float)
 # Today's log's odometry starts in a frame of its own: 20 m and 135 degrees from the map's.
 ELSEWHERE = Pose2D(20.0, -7.0, math.radians(135.0))
 IDENTITY = Pose2D()
@@ -101,6 +105,22 @@ def test_a_place_that_looks_like_another_needs_an_initial_pose(tmp_path: Path, c
     x, y, _ = json.loads((tmp_path / "y" / "summary.json").read_text()
                          )["localization"]["prior"]["start"]
     assert math.hypot(x - 6.8, y - 1.2) < 0.05
+
+
+def test_a_first_scan_that_fits_anywhere_is_placed_with_the_scans_after_it(
+        tmp_path: Path, cli) -> None:
+    log1, _ = session(tmp_path / "a", CORRIDOR, [(1.5, 0.0), (28.5, 0.0)], Pose2D(1.5, 0.0, 0.0),
+                      seconds=120.0)  # mapped with its exact odometry: the map is right
+    cli("process", log1, "-o", tmp_path / "first", "-q", "--localization", "odometry")
+    # today's log starts on the plain stretch, 10 m from the alcove, and drives towards it
+    log2, _ = session(tmp_path / "b", CORRIDOR, [(26.0, 0.0), (2.0, 0.0)], Pose2D(11.0, 0.0, 0.0),
+                      odometry_frame=ELSEWHERE, seconds=30.0)
+    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 0, result.output
+    report = json.loads((tmp_path / "o" / "summary.json").read_text())["localization"]["prior"]
+    assert 1.0 < report["driven_m"] <= 12.0
+    x, y, deg = report["start"]
+    assert math.hypot(x - 11.0, y) < 0.1 and abs(math.remainder(deg, 360.0)) < 1.0
 
 
 def test_an_initial_pose_far_off_is_corrected_by_the_whole_map(tmp_path: Path, cli,

@@ -70,6 +70,31 @@ def splat_gaussians(double[:, ::1] grid, const double[:, ::1] pts, double ox, do
                         grid[r, c] = v
 
 
+def lattice_scores(const double[:, ::1] grid, const Py_ssize_t[:, ::1] dr,
+                   const Py_ssize_t[:, ::1] dc, const Py_ssize_t[::1] th,
+                   const Py_ssize_t[::1] col, const Py_ssize_t[::1] row):
+    """Mean grid value at the cells (row[i] + dr[th[i], k], col[i] + dc[th[i], k]) over k,
+    for each candidate i (the global search's lattice); cells off the grid count 0."""
+    cdef Py_ssize_t n = th.shape[0], m = dr.shape[1], i, k, r, c, t
+    cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1]
+    cdef double acc
+    out = np.zeros(n)
+    cdef double[::1] o = out
+    if m == 0:
+        return out
+    with nogil:
+        for i in range(n):
+            t = th[i]
+            acc = 0.0
+            for k in range(m):
+                r = row[i] + dr[t, k]
+                c = col[i] + dc[t, k]
+                if 0 <= r < rows and 0 <= c < cols:
+                    acc = acc + grid[r, c]
+            o[i] = acc / m
+    return out
+
+
 def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
                 const double[:, ::1] pts, double x, double y, const double[::1] thetas,
                 const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty):

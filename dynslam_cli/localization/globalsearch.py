@@ -25,7 +25,6 @@ FIELD_SIGMA_M = 0.08  # the spread of an end point about the wall it hit
 FIELD_REACH_SIGMAS = 4.0
 TOP_CELLS = 16  # the coarsest level splits the map's longer side into about this many squares
 GREEDY_STARTS = 8  # each level, this many best squares are followed down to a pose
-CHUNK = 1 << 22  # end-point lookups scored at a time (memory: 8 bytes each)
 
 
 
@@ -84,9 +83,17 @@ def _pool(grid: np.ndarray, h: int) -> np.ndarray:
     return out
 
 
+# The heading step turns the farthest end point by this many cells (Hess et al. take 1): a
+# pose half a step off the best heading moves it by a cell, within the field's spread (1.6
+# cells), and the refinement finds the heading between steps. Placing MIT CSAIL's second
+# half in its first: 4.5 s instead of 8.5 s, the same pose.
+HEADING_CELLS = 2.0
+
+
 def heading_step(points: np.ndarray, resolution: float) -> float:
-    """The heading step (rad) that moves the farthest end point by about one cell (Hess et
-    al., Eq. 7)."""
+    """The heading step (rad) that turns the farthest end point by HEADING_CELLS cells (Hess
+    et al., Eq. 7)."""
+    resolution = resolution * HEADING_CELLS
     far = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if len(points) else 1.0
     far = max(far, resolution)
     return math.acos(max(-1.0, 1.0 - resolution ** 2 / (2.0 * far ** 2)))
@@ -106,27 +113,17 @@ class Lattice:
         res = field.resolution
         x = c * points[None, :, 0] - s * points[None, :, 1]
         y = s * points[None, :, 0] + c * points[None, :, 1]
-        self.dc = np.floor(x / res + 0.5).astype(np.intp)
-        self.dr = np.floor(y / res + 0.5).astype(np.intp)
+        self.dc = np.ascontiguousarray(np.floor(x / res + 0.5), dtype=np.intp)
+        self.dr = np.ascontiguousarray(np.floor(y / res + 0.5), dtype=np.intp)
 
     def scores(self, level: int, th: np.ndarray, col: np.ndarray, row: np.ndarray
                ) -> np.ndarray:
         """Mean value at the end points of level ``level`` of the pyramid for each candidate
         (arrays of heading indices and robot cells): the score itself at level 0, a bound
         on every pose of the candidate's 2^level square above it."""
-        grid = self.field.levels[level]
-        rows, cols = grid.shape
-        out = np.empty(len(th))
-        n = self.dc.shape[1]
-        per = max(1, CHUNK // max(n, 1))
-        for a in range(0, len(th), per):
-            b = min(a + per, len(th))
-            r = self.dr[th[a:b]] + row[a:b, None]
-            c = self.dc[th[a:b]] + col[a:b, None]
-            ok = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
-            v = np.where(ok, grid[np.clip(r, 0, rows - 1), np.clip(c, 0, cols - 1)], 0.0)
-            out[a:b] = v.mean(axis=1) if n else 0.0
-        return out
+        return _loops.lattice_scores(self.field.levels[level], self.dr, self.dc,
+                                     th.astype(np.intp), col.astype(np.intp),
+                                     row.astype(np.intp))
 
     def pose(self, th: int, col: int, row: int) -> Pose2D:
         ox, oy = self.field.origin
@@ -291,4 +288,5 @@ def refine(occupied: np.ndarray, resolution: float, origin: tuple[float, float],
     best = minimize(cost, np.zeros(3), method="Powell", bounds=bounds,
                     options={"xtol": 1e-4, "ftol": 1e-9})
     v = best.x if best.fun <= cost(np.zeros(3)) else np.zeros(3)
-    return Pose2D(pose.x + v[0], pose.y + v[1], float(math.remainder(pose.theta + v[2], math.tau)))
+    return Pose2D(float(pose.x + v[0]), float(pose.y + v[1]),
+                  float(math.remainder(pose.theta + v[2], math.tau)))
