@@ -1,12 +1,13 @@
 """A picture of S ∪ D: static map in grey levels (dark = occupied, grey = unknown), dynamic
 cells in red, the trajectory in blue, landmarks as small squares (static green, dynamic
 orange), change events numbered as in changes.csv: objects (appeared magenta, vacated
-cyan) as outlines of their size, movers (violet) as thin paths. Numbers are written only
-where they overlap no other number, and at most MAX_EVENTS_DRAWN events are drawn (the
-largest; the frame says how many more changes.csv holds). ``map.png`` shows the part
-with walls, path, landmarks or events, upscaled by whole pixels per cell when small, with
-metre ticks in the map frame, a scale bar and a legend; the snapshots and the frames of
-``evolution.gif`` have the same frame and their time from the log's start."""
+cyan, removed since a prior session dark cyan) as outlines of their size, movers (violet)
+as thin paths. Numbers are written only where they overlap no other number, and at most
+MAX_EVENTS_DRAWN events are drawn (the largest; the frame says how many more changes.csv
+holds). ``map.png`` shows the part with walls, path, landmarks or events, upscaled by whole
+pixels per cell when small, with metre ticks in the map frame, a scale bar and a legend;
+the snapshots and the frames of ``evolution.gif`` have the same frame and their time from
+the log's start."""
 
 from __future__ import annotations
 
@@ -26,7 +27,9 @@ from dynslam_cli.result import Landmark
 DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)
 LANDMARK_RGB = {"static": (20, 160, 60), "dynamic": (255, 140, 0)}
-CHANGE_RGB = {"appeared": (230, 0, 200), "vacated": (0, 170, 200), "moving": (120, 60, 200)}
+CHANGE_RGB = {"appeared": (230, 0, 200), "vacated": (0, 170, 200), "moving": (120, 60, 200),
+              "removed_since_prior": (0, 110, 130)}
+PRIOR_KINDS = ("removed_since_prior",)  # events between sessions (--prior) only
 PAPER_RGB = (255, 255, 255)
 INK_RGB = (0, 0, 0)
 
@@ -207,16 +210,26 @@ LEGEND = [((0, 0, 0), "static S (occupied)"), ((255, 255, 255), "free"),
           ((128, 128, 128), "unknown"), (DYNAMIC_RGB, "dynamic D"),
           (TRAJECTORY_RGB, "trajectory"), (LANDMARK_RGB["static"], "static landmark"),
           (LANDMARK_RGB["dynamic"], "dynamic landmark"),
-          *((rgb, f"{kind} (changes.csv)") for kind, rgb in CHANGE_RGB.items())]
+          *((rgb, f"{kind} (changes.csv)") for kind, rgb in CHANGE_RGB.items()
+            if kind not in PRIOR_KINDS)]
+
+
+def legend(changes: Sequence[ChangeEvent] = ()) -> list[tuple[tuple[int, int, int], str]]:
+    """The legend's entries: every picture's, and the kinds of events between sessions
+    (``--prior``) where some are drawn."""
+    kinds = {e.kind for e in changes}
+    return LEGEND + [(CHANGE_RGB[k], f"{k} (changes.csv)") for k in PRIOR_KINDS if k in kinds]
 
 
 def frame(lattice: tuple[float, float, float], window: tuple[int, int, int, int],
-          size: tuple[int, int], scale: float, title: str = "", note: str = ""
+          size: tuple[int, int], scale: float, title: str = "", note: str = "",
+          entries: Sequence[tuple[tuple[int, int, int], str]] = tuple(LEGEND)
           ) -> tuple[Image.Image, int, int]:
     """The frame of a picture of ``size`` pixels showing ``window`` (cells of a grid whose
     ``lattice`` is its origin x, y and resolution, m) at ``scale`` pixels per cell:
-    ``title`` above, metre ticks (map frame) on the left and bottom, a scale bar, a legend
-    and ``note`` below. Returns the canvas and where the picture goes in it (left, top)."""
+    ``title`` above, metre ticks (map frame) on the left and bottom, a scale bar, the legend
+    of ``entries`` and ``note`` below. Returns the canvas and where the picture goes in it
+    (left, top)."""
     font = ImageFont.load_default()
     ox, oy, res = lattice
     c0, r0, c1, r1 = window
@@ -224,7 +237,7 @@ def frame(lattice: tuple[float, float, float], window: tuple[int, int, int, int]
     w, h = size
     width = max(left + w + right, left + int(font.getlength(note)) + right)
     legend, u, y = [], left, top + h + 46  # the legend's entries, wrapped to the width
-    for colour, label in LEGEND:
+    for colour, label in entries:
         length = font.getlength(label)
         if u + 16 + length > width - right and u > left:
             u, y = left, y + 16
@@ -286,7 +299,7 @@ def map_picture(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndar
     window = content_window(static, trajectory, landmarks, occupied_thresh, changes=changes)
     scale, shrink = picture_scale(window)
     framed = frame(_lattice(static), window, picture_size(window, scale, shrink), scale / shrink,
-                   note=left_out_note(len(changes)))
+                   note=left_out_note(len(changes)), entries=legend(changes))
     render(static, dynamic, trajectory, landmarks, occupied_thresh, window, scale, shrink,
            into=framed, changes=changes)
     return framed[0], scale / shrink

@@ -170,7 +170,7 @@ def test_events_on_the_maps_edge_are_drawn_inside_the_picture_only():
     rows, cols = changed[:, 0], changed[:, 1]
     assert rows.min() > top and rows.max() < bottom and cols.min() > left and cols.max() < right
     colours = {tuple(c) for c in b[rows, cols]}
-    assert all(tuple(rgb) in colours for rgb in CHANGE_RGB.values())
+    assert all(tuple(CHANGE_RGB[e.kind]) in colours for e in events)
 
 
 def test_a_busy_picture_draws_the_largest_events_and_says_how_many_more():
@@ -295,3 +295,13 @@ def test_tum_stamps_are_ascending_and_unique_for_evo():
     write_tum(buf, evo_ready(np.column_stack([np.zeros(5), poses])))
     assert [line.split()[0] for line in buf.getvalue().splitlines()] == [
         "0.000000", "1.000000", "2.000000", "3.000000", "4.000000"]
+
+
+def test_the_legend_names_events_between_sessions_only_where_there_are_some():
+    from dynslam_cli.mapping.changes import ChangeEvent
+    from dynslam_formats.picture import legend
+
+    gone = ChangeEvent(1, "removed_since_prior", 0.0, 1.0, 2.0, 2.0, 0.4, 9)
+    moving = ChangeEvent(2, "moving", 0.0, 1.0, 2.0, 2.0, 0.1, 9)
+    assert not any("removed_since_prior" in label for _, label in legend([moving]))
+    assert any("removed_since_prior" in label for _, label in legend([moving, gone]))

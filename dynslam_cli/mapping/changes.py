@@ -29,7 +29,7 @@ from dynslam_cli.mapping import _changes, _grid
 from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
 from dynslam_cli.sections import ChangeConfig, MapConfig
 
-KINDS = ("appeared", "vacated", "moving")
+KINDS = ("appeared", "vacated", "moving", "removed_since_prior")
 
 
 @dataclass(frozen=True)
@@ -444,7 +444,8 @@ def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
 def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
     """Places S held Occupied, crossed by beams at most ``passes_to_leave`` times each and
     Free at the end, grouped by neighbourhood (cells ``merge_distance_m`` apart): a static
-    object gone, seen so when half its cells had been crossed.
+    object gone, seen so when half its cells had been crossed; ``removed_since_prior`` where
+    S held it from an earlier session's map (``--prior``) and this run never saw it come.
     A place a mover was seen beside when it went is that mover's trail, not an event."""
     config, grids = recorder.config, recorder.grids
     recorder.compact()
@@ -486,5 +487,7 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
         near = np.abs(trail[:, 0] - first) <= config.track_gap_s
         if np.any(np.hypot(trail[near, 1] - x, trail[near, 2] - y) <= config.track_gate_m):
             continue  # (a mover's trail)
-        out.append(ChangeEvent(0, "vacated", first, last, float(x), float(y), area, len(seen)))
+        # no cell of it came into S in this run: it stood there in the prior's map
+        kind = "removed_since_prior" if grids.seeded and not len(since) else "vacated"
+        out.append(ChangeEvent(0, kind, first, last, float(x), float(y), area, len(seen)))
     return out

@@ -130,6 +130,8 @@ class GridStack:
         self.tile_rows = np.zeros(0, np.int32)
         self.tile_cols = np.zeros(0, np.int32)
         self.tiles = 0
+        self.seeded = False
+        """Whether cells were set from an earlier session's map (:meth:`seed`)."""
         self._table = np.full((0, 0), -1, np.int32)
         self._table_origin = (0, 0)  # world tile of the table's [0, 0]
 
@@ -241,6 +243,7 @@ class GridStack:
         flat = self.flat_cells(rows, cols)
         self.layers[name][flat] = values
         self._listed[flat] = np.maximum(self._listed[flat], 1)
+        self.seeded = True
 
     def world_cells_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World (row, col) of the cells holding the points (x, y)."""
