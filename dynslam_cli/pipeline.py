@@ -58,7 +58,9 @@ class DynamicSlam:
         self._slam: CornerSlam | None = None
         self._measure = front.measurement if front is not None else measurer(config)
         self._motion_sources: Counter[str] = Counter()
-        self._loops = LoopCloser(config.loop, config.match, config.ekf.noise) if use_graph else None
+        self._loops = (LoopCloser(config.loop, config.match, config.ekf.noise,
+                                  prior.walls() if prior is not None else None)
+                       if use_graph else None)
         self._store = ScanStore() if use_graph else None
         self._count = 0
 

@@ -13,6 +13,7 @@ drawn in the wrong place.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -24,12 +25,13 @@ from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, inverse, transform_points
 from dynslam_cli.localization.frontend import ScanMeasurer
 from dynslam_cli.localization.globalsearch import (
+    BlurredMap,
     MapField,
     Placement,
     heading_step,
     place,
-    refine,
 )
+from dynslam_cli.localization.loops import PriorWalls
 from dynslam_cli.localization.scanmatch import scan_points, thin
 from dynslam_cli.mapping.grid import GridStack, OccupancyMap, logit, steps
 from dynslam_cli.sections import MapConfig, MatchConfig, NoiseModel, PriorConfig
@@ -95,6 +97,16 @@ class PriorSession:
                               dtype=np.int16)
         self.report: dict[str, Any] = {"folder": prior.folder, "initial_pose": (
             None if initial is None else [initial.x, initial.y, math.degrees(initial.theta)])}
+
+    def walls(self) -> PriorWalls:
+        """What the pose graph matches the run's scans against as it goes, to stay in the
+        prior's frame: the centres of its Occupied cells (N×2), and the blurred map to make
+        a match finer than a cell on."""
+        grid = self.prior.static
+        rows, cols = np.nonzero(grid.prob > self.prior.occupied_thresh)
+        return PriorWalls(np.column_stack((grid.origin_x + (cols + 0.5) * grid.resolution,
+                                           grid.origin_y + (rows + 0.5) * grid.resolution)),
+                          self.blurred)
 
     def seed(self, grids: GridStack) -> None:
         """Start S (the layer "static") from the prior's Free and Occupied cells, each as
@@ -179,11 +191,16 @@ class PriorSession:
     def _refine(self, pose: Pose2D, points: np.ndarray) -> Pose2D:
         """The search's pose (a cell's centre, a heading of its lattice) made finer, within
         a cell and a heading step of it."""
+        res = self.prior.static.resolution
+        return self.blurred.refine(points, pose, res, heading_step(points, res))
+
+    @functools.cached_property
+    def blurred(self) -> BlurredMap:
+        """The prior's Occupied cells blurred, to make poses finer than a cell on."""
         grid = self.prior.static
-        return refine(grid.prob > self.prior.occupied_thresh, grid.resolution,
-                      (grid.origin_x + 0.5 * grid.resolution,
-                       grid.origin_y + 0.5 * grid.resolution), points, pose,
-                      grid.resolution, heading_step(points, grid.resolution))
+        return BlurredMap(grid.prob > self.prior.occupied_thresh, grid.resolution,
+                          (grid.origin_x + 0.5 * grid.resolution,
+                           grid.origin_y + 0.5 * grid.resolution))
 
     def _place(self, field: MapField, points: np.ndarray,
                near: tuple[Pose2D, float, float] | None) -> Placement:

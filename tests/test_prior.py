@@ -38,12 +38,12 @@ IDENTITY = Pose2D()
 
 def session(folder: Path, walls: np.ndarray, route: list, start: Pose2D,
             odometry_frame: Pose2D = IDENTITY, seconds: float = 40.0,
-            boxes: tuple[Box, ...] = ()) -> tuple[Path, list]:
-    """A simulated log of a drive round ``route`` from ``start``, its odometry exact but in
-    a frame of its own (each true pose q logged as odometry_frame ∘ q), and the true
-    poses."""
+            boxes: tuple[Box, ...] = (), noise: float = 0.0) -> tuple[Path, list]:
+    """A simulated log of a drive round ``route`` from ``start``, its odometry in a frame of
+    its own (each odometry pose q logged as odometry_frame ∘ q), exact or drifting
+    (``noise`` times the simulator's default), and the true poses."""
     world = World("room", walls, route, start, boxes=list(boxes), speed=0.5)
-    steps, truth = simulate(world, seconds, 10.0, 0, noise=OdometryNoise().scaled(0.0))
+    steps, truth = simulate(world, seconds, 10.0, 0, noise=OdometryNoise().scaled(noise))
     moved = [dataclasses.replace(s, odom=compose(odometry_frame, s.odom)) for s in steps]
     folder.mkdir(parents=True, exist_ok=True)
     log = folder / "room.log"
@@ -88,6 +88,21 @@ def test_a_second_session_is_placed_in_the_prior_map_and_its_frame(tmp_path: Pat
     for origin in ((a.origin_x, b.origin_x), (a.origin_y, b.origin_y)):
         assert abs((origin[0] - origin[1]) / a.resolution % 1.0 - 0.0) < 1e-6 or \
             abs((origin[0] - origin[1]) / a.resolution % 1.0 - 1.0) < 1e-6
+
+
+def test_a_second_session_on_drifting_odometry_stays_in_the_prior_frame(tmp_path: Path, cli
+                                                                        ) -> None:
+    log1, _ = session(tmp_path / "a", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0), seconds=60.0)
+    cli("process", log1, "-o", tmp_path / "first", "-q", "--localization", "odometry")
+    log2, truth = session(tmp_path / "b", ROOM, ROUTE[2:] + ROUTE[:2], Pose2D(4.5, 2.5, math.pi),
+                          odometry_frame=ELSEWHERE, seconds=150.0, noise=3.0)
+    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 0, result.output
+    poses = read_tum(tmp_path / "o" / "trajectory.tum")
+    error = np.hypot(poses[:, 1] - [p[1] for p in truth], poses[:, 2] - [p[2] for p in truth])
+    assert math.sqrt(np.mean(error ** 2)) < 0.01  # no alignment: in the prior's frame
+    localization = json.loads((tmp_path / "o" / "summary.json").read_text())["localization"]
+    assert localization["prior_matches"] > 0
 
 
 def test_a_place_that_looks_like_another_needs_an_initial_pose(tmp_path: Path, cli) -> None:

@@ -256,37 +256,43 @@ def _descend(lattice: Lattice, regions: list[Region], level: int, th: int, col: 
     return score, (th, col, row)
 
 
-def refine(occupied: np.ndarray, resolution: float, origin: tuple[float, float],
-           points: np.ndarray, pose: Pose2D, shift_m: float, turn: float) -> Pose2D:
-    """The lattice's pose made finer than a cell: the pose within ``shift_m`` and ``turn``
-    (radians) of ``pose`` at which the scan's end points lie best on the map's Occupied
-    cells blurred by the end points' spread (a wall drawn two cells thick peaks between
-    them, where the likelihood field's max over cells does not), by Powell's method on the
-    cubic-spline interpolation of the blur. ``occupied`` and ``origin`` as for
-    :class:`MapField`."""
-    from scipy.ndimage import gaussian_filter, map_coordinates, spline_filter
-    from scipy.optimize import minimize
+class BlurredMap:
+    """A map's Occupied cells blurred by the end points' spread, as cubic-spline
+    coefficients (made once), on which a pose is made finer than a cell: a wall drawn two
+    cells thick peaks between them, where the likelihood field's max over cells (and ICP
+    on the cells' centres) puts poses on a cell's centre line. ``occupied`` and ``origin``
+    as for :class:`MapField`."""
 
-    reach = float(np.max(np.hypot(points[:, 0], points[:, 1]))) + shift_m + 4 * FIELD_SIGMA_M
-    c0 = max(0, math.floor((pose.x - reach - origin[0]) / resolution))
-    r0 = max(0, math.floor((pose.y - reach - origin[1]) / resolution))
-    c1 = min(occupied.shape[1], math.ceil((pose.x + reach - origin[0]) / resolution) + 1)
-    r1 = min(occupied.shape[0], math.ceil((pose.y + reach - origin[1]) / resolution) + 1)
-    blur = spline_filter(gaussian_filter(occupied[r0:r1, c0:c1].astype(float),
-                                         FIELD_SIGMA_M / resolution, mode="constant"))
+    def __init__(self, occupied: np.ndarray, resolution: float,
+                 origin: tuple[float, float]) -> None:
+        from scipy.ndimage import gaussian_filter, spline_filter
 
-    def cost(v: np.ndarray) -> float:
-        x, y, th = pose.x + v[0], pose.y + v[1], pose.theta + v[2]
-        c, s = math.cos(th), math.sin(th)
-        px = x + c * points[:, 0] - s * points[:, 1]
-        py = y + s * points[:, 0] + c * points[:, 1]
-        at = [(py - origin[1]) / resolution - r0, (px - origin[0]) / resolution - c0]
-        return -float(np.mean(map_coordinates(blur, at, order=3, mode="constant",
-                                              prefilter=False)))
+        self.resolution, self.origin = resolution, origin
+        self._spline = spline_filter(gaussian_filter(occupied.astype(float),
+                                                     FIELD_SIGMA_M / resolution,
+                                                     mode="constant"))
 
-    bounds = [(-shift_m, shift_m), (-shift_m, shift_m), (-turn, turn)]
-    best = minimize(cost, np.zeros(3), method="Powell", bounds=bounds,
-                    options={"xtol": 1e-4, "ftol": 1e-9})
-    v = best.x if best.fun <= cost(np.zeros(3)) else np.zeros(3)
-    return Pose2D(float(pose.x + v[0]), float(pose.y + v[1]),
-                  float(math.remainder(pose.theta + v[2], math.tau)))
+    def refine(self, points: np.ndarray, pose: Pose2D, shift_m: float, turn: float) -> Pose2D:
+        """The pose within ``shift_m`` and ``turn`` (radians) of ``pose`` at which the end
+        points (N×2, robot frame) lie best on the blurred map (Powell's method on its
+        cubic-spline interpolation); ``pose`` where none does better."""
+        from scipy.ndimage import map_coordinates
+        from scipy.optimize import minimize
+
+        res, (ox, oy) = self.resolution, self.origin
+
+        def cost(v: np.ndarray) -> float:
+            x, y, th = pose.x + v[0], pose.y + v[1], pose.theta + v[2]
+            c, s = math.cos(th), math.sin(th)
+            px = x + c * points[:, 0] - s * points[:, 1]
+            py = y + s * points[:, 0] + c * points[:, 1]
+            return -float(np.mean(map_coordinates(self._spline, [(py - oy) / res,
+                                                                 (px - ox) / res],
+                                                  order=3, mode="constant", prefilter=False)))
+
+        bounds = [(-shift_m, shift_m), (-shift_m, shift_m), (-turn, turn)]
+        best = minimize(cost, np.zeros(3), method="Powell", bounds=bounds,
+                        options={"xtol": 1e-4, "ftol": 1e-9})
+        v = best.x if best.fun <= cost(np.zeros(3)) else np.zeros(3)
+        return Pose2D(float(pose.x + v[0]), float(pose.y + v[1]),
+                      float(math.remainder(pose.theta + v[2], math.tau)))

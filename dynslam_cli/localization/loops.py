@@ -28,7 +28,9 @@ import bisect
 import math
 from array import array
 from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,6 +46,7 @@ from dynslam_cli.geometry import (
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.ekf import motion_std
+from dynslam_cli.localization.globalsearch import BlurredMap
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
 from dynslam_cli.localization.scanmatch import icp, scan_points
 from dynslam_cli.sections import LoopConfig, MatchConfig, NoiseModel
@@ -200,6 +203,14 @@ def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
     return np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV
 
 
+class PriorWalls(NamedTuple):
+    """An earlier session's map, to keep a run in its frame (``--prior``): the centres of
+    its Occupied cells (N×2) and the map blurred, to make a match finer than a cell on."""
+
+    points: np.ndarray
+    blurred: BlurredMap
+
+
 @dataclass(frozen=True)
 class Closure:
     """A loop-closure match: node ``new`` seen from node ``old`` at ``z``, its information,
@@ -256,7 +267,10 @@ class Links:
 class LoopCloser:
     """Keeps the graph, the key scans and the closures."""
 
-    def __init__(self, cfg: LoopConfig, match: MatchConfig, motion_noise: NoiseModel) -> None:
+    def __init__(self, cfg: LoopConfig, match: MatchConfig, motion_noise: NoiseModel,
+                 prior: PriorWalls | None = None) -> None:
+        """``prior``: an earlier session's walls (its frame is the map frame; the first
+        node's pose is in it), matched like an old node's submap."""
         self.cfg = cfg
         self.match = match
         self.motion_noise = motion_noise  # the EKF's: of its motion between two nodes
@@ -272,6 +286,11 @@ class LoopCloser:
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
         self._chain = (Pose2D(), np.zeros((3, 3)), 0)  # since the last node: motion, its
         # covariance, scans (chain_information = "matched")
+        self._prior = prior
+        self._prior_field = (likelihood_field(prior.points)
+                             if prior is not None and len(prior.points) else None)
+        self._last_prior_m = -math.inf
+        self.prior_matches = 0
         self._scan_nodes = array("i")  # per scan placed: its node ...
         self._scan_offsets = array("d")  # ... and its pose in that node's EKF frame
 
@@ -296,7 +315,8 @@ class LoopCloser:
         step = math.hypot(z.x, z.y)
         self._append(local_pose, points, self.path[-1] + step)
         self._links.link(k_prev, k, step)
-        return self._try_closure(k)
+        moved = self._try_closure(k)
+        return self._try_prior(k) or moved
 
     def _chain_information(self, z: Pose2D) -> np.ndarray:
         """The information of the edge of motion ``z`` from the last node to a new one
@@ -375,27 +395,63 @@ class LoopCloser:
         i, graph_m = found
         radius = float(self.radius(graph_m))
         window_deg = min(cfg.search_angle_deg + graph_m / 10.0, cfg.max_search_angle_deg)
+        found = self._match(lambda: self._field(i, old), k,
+                            relative(self.pose(i), self.pose(k)), radius, window_deg)
+        if found is None:
+            return False
+        pose, info, _ = found
+        return self._close(Closure(i, k, pose, info, self._chi2(i, k, pose, info)), k)
+
+    def _try_prior(self, k: int) -> bool:
+        """Node k's scans matched against the prior map (``prior_walls``) near where the
+        graph has it, every ``attempt_every_m``: a closure to the first node (held where
+        the prior placed it), so the run stays in the prior's frame; accepted as any other."""
+        cfg, prior, field = self.cfg, self._prior, self._prior_field
+        if (prior is None or field is None
+                or self.path[k] - self._last_prior_m < cfg.attempt_every_m):
+            return False
+        self._last_prior_m = self.path[k]
+        found = self._match(lambda: field, k, self.pose(k), cfg.search_radius_m,
+                            cfg.search_angle_deg)
+        if found is None:
+            return False
+        self.prior_matches += 1
+        pose, info, query = found  # ICP on the cells' centres, made finer on the blur:
+        pose = prior.blurred.refine(query, pose, FIELD_RES_M, math.radians(ANGLE_STEP_DEG))
+        z = relative(self.pose(0), pose)
+        return self._close(Closure(0, k, z, info, self._chi2(0, k, z, info)), k)
+
+    def _match(self, field_of: Callable[[], LikelihoodField], k: int, guess: Pose2D,
+               radius: float, window_deg: float
+               ) -> tuple[Pose2D, np.ndarray, np.ndarray] | None:
+        """Node k's scans (and ``query_nodes`` before it) placed on the field ``field_of``
+        makes (only if they are worth matching) within the window around ``guess`` (the
+        field's frame), refined by ICP, the information of the match and the points matched
+        (node k's frame); None where it is poor, ambiguous or a corridor's."""
+        cfg = self.cfg
         query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
-            return False  # a corridor: it could be anywhere along it
-        field = self._field(i, old)
-        guess = relative(self.pose(i), self.pose(k))
+            return None  # a corridor: it could be anywhere along it
+        field = field_of()
         match = correlative_match(field, query, guess, radius, window_deg)
         if (match.score < cfg.min_score
                 or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
-            return False
+            return None
         refined = icp(field.index, query, match.pose, self.match,
                       np.sqrt(np.diag(match.cov)))
         if refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m:
-            return False
-        pose = refined.pose
+            return None
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
-        closure = Closure(i, k, pose, info, self._chi2(i, k, pose, info))
+        return refined.pose, info, query
+
+    def _close(self, closure: Closure, k: int) -> bool:
+        """A closure found at node k through acceptance into the graph; True if the graph
+        was optimized."""
         accepted = self.accept(closure)
         self.add_closures(accepted)
         if not accepted:
             return False
-        if all(c.chi2 <= cfg.agree_chi2 for c in accepted):
+        if all(c.chi2 <= self.cfg.agree_chi2 for c in accepted):
             return False  # the graph already agrees: optimize later (finish() always does)
         self.optimize(around=[k, *(c.old for c in accepted)])
         return True
@@ -502,9 +558,11 @@ class LoopCloser:
         return transform_points(self.correction(len(self.local_poses) - 1), points)
 
     def counts(self) -> dict[str, int]:
-        """The graph's nodes, the closures tried and made (for ``summary.json``)."""
+        """The graph's nodes, the closures tried and made (those to the prior's walls
+        among them; and how many scans matched those) for ``summary.json``."""
+        prior = {"prior_matches": self.prior_matches} if self._prior is not None else {}
         return {"graph_nodes": len(self.local_poses), "loop_closure_attempts": self.attempts,
-                "loop_closures": self.closures}
+                "loop_closures": self.closures, **prior}
 
     def place(self, local_pose: Pose2D, scan: Scan,
               motion: tuple[Pose2D, np.ndarray] | None = None) -> Pose2D:
