@@ -235,7 +235,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
       dynamic.pgm/.yaml   dynamic map D (trinary, same size and origin)
       map.png             picture of S ∪ D with the trajectory, events numbered
       changes.csv         what changed: id,kind (appeared, vacated, moving;
-                          removed_since_prior with --prior),
+                          with --prior added_ and removed_since_prior),
                           first_s,last_s,x,y,size_m2,scans,landmarks
       landmarks.csv       id,x,y,kind,class,observations,cov_xx,cov_xy,cov_yy
       trajectory.tum      one robot pose per scan (TUM, for evo)

@@ -1,13 +1,13 @@
 """A picture of S ∪ D: static map in grey levels (dark = occupied, grey = unknown), dynamic
 cells in red, the trajectory in blue, landmarks as small squares (static green, dynamic
 orange), change events numbered as in changes.csv: objects (appeared magenta, vacated
-cyan, removed since a prior session dark cyan) as outlines of their size, movers (violet)
-as thin paths. Numbers are written only where they overlap no other number, and at most
-MAX_EVENTS_DRAWN events are drawn (the largest; the frame says how many more changes.csv
-holds). ``map.png`` shows the part with walls, path, landmarks or events, upscaled by whole
-pixels per cell when small, with metre ticks in the map frame, a scale bar and a legend;
-the snapshots and the frames of ``evolution.gif`` have the same frame and their time from
-the log's start."""
+cyan; added and removed since a prior session dark magenta and dark cyan) as outlines of
+their size, movers (violet) as thin paths. Numbers are written only where they overlap no
+other number, and at most MAX_EVENTS_DRAWN events are drawn (the largest; the frame says
+how many more changes.csv holds). ``map.png`` shows the part with walls, path, landmarks
+or events, upscaled by whole pixels per cell when small, with metre ticks in the map
+frame, a scale bar and a legend; the snapshots and the frames of ``evolution.gif`` have
+the same frame and their time from the log's start."""
 
 from __future__ import annotations
 
@@ -28,8 +28,8 @@ DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)
 LANDMARK_RGB = {"static": (20, 160, 60), "dynamic": (255, 140, 0)}
 CHANGE_RGB = {"appeared": (230, 0, 200), "vacated": (0, 170, 200), "moving": (120, 60, 200),
-              "removed_since_prior": (0, 110, 130)}
-PRIOR_KINDS = ("removed_since_prior",)  # events between sessions (--prior) only
+              "removed_since_prior": (0, 110, 130), "added_since_prior": (150, 0, 120)}
+PRIOR_KINDS = ("removed_since_prior", "added_since_prior")  # between sessions (--prior)
 PAPER_RGB = (255, 255, 255)
 INK_RGB = (0, 0, 0)
 

@@ -196,3 +196,17 @@ def test_an_object_gone_since_the_prior_session_is_an_event(tmp_path: Path, cli)
     cli("process", log2, "-o", tmp_path / "alone", "-q")
     with open(tmp_path / "alone" / "changes.csv") as f:
         assert not [e for e in read_changes(f) if e.kind != "moving"]
+
+
+def test_an_object_standing_since_the_prior_session_is_an_event(tmp_path: Path, cli) -> None:
+    log1, _ = session(tmp_path / "a", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0))
+    cli("process", log1, "-o", tmp_path / "first", "-q")
+    crate = Box("crate", 0.3, 0.3, [(-0.5, 0.3)])  # put there overnight
+    log2, _ = session(tmp_path / "b", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
+                      odometry_frame=ELSEWHERE, boxes=(crate,))
+    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
+    assert result.exit_code == 0, result.output
+    with open(tmp_path / "o" / "changes.csv") as f:
+        events = [e for e in read_changes(f) if e.kind != "moving"]
+    assert [e.kind for e in events] == ["added_since_prior"]
+    assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.3

@@ -29,7 +29,7 @@ from dynslam_cli.mapping import _changes, _grid
 from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
 from dynslam_cli.sections import ChangeConfig, MapConfig
 
-KINDS = ("appeared", "vacated", "moving", "removed_since_prior")
+KINDS = ("appeared", "vacated", "moving", "removed_since_prior", "added_since_prior")
 
 
 @dataclass(frozen=True)
@@ -90,6 +90,9 @@ class ChangeRecorder:
         """Cells crossed more often than ``passes_to_leave`` (sorted): never a place
         vacated, so their records are let go (:meth:`compact`)."""
         self._compact_at = COMPACT_AT
+        self._first_free = np.zeros(0, np.int32)
+        """On an earlier session's map (a seeded grid): the scan that first saw each cell
+        free in this run, plus one (0: none yet), by flat index."""
 
     def record(self, stamp: float, obs: Observation, hit_on_free: np.ndarray) -> None:
         """One scan's evidence: its observation (before the maps are updated with it) and
@@ -109,8 +112,33 @@ class ChangeRecorder:
              _grid.cells_above(static, obs.free, self._occupied))
         _add(self._rising, self._rising_scan, scan,
              _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied, False))
+        if grids.seeded:
+            self._note_first_free(obs.free, scan)
         if len(self._crossed) + len(self._rising) >= self._compact_at:
             self.compact()
+
+    def _note_first_free(self, cells: np.ndarray, scan: int) -> None:
+        if len(self._first_free) < len(self.grids.layers["static"]):
+            grown = np.zeros(len(self.grids.layers["static"]), np.int32)
+            grown[:len(self._first_free)] = self._first_free
+            self._first_free = grown
+        fresh = cells[self._first_free[cells] == 0]
+        self._first_free[fresh] = scan + 1
+
+    def seen_free_before(self, x0: float, y0: float, x1: float, y1: float, scan: int
+                         ) -> float:
+        """The share of the cells of a box (map frame, m) that this run saw free before
+        scan ``scan`` (on an earlier session's map only; else 1)."""
+        if not self.grids.seeded:
+            return 1.0
+        res = self.grids.resolution
+        rows, cols = np.meshgrid(np.arange(math.floor(y0 / res), math.floor(y1 / res) + 1),
+                                 np.arange(math.floor(x0 / res), math.floor(x1 / res) + 1),
+                                 indexing="ij")
+        flat = self.grids.flat_cells(rows.ravel(), cols.ravel())
+        flat = flat[(flat >= 0) & (flat < len(self._first_free))]
+        first = self._first_free[flat]
+        return float(np.count_nonzero((first > 0) & (first <= scan))) / max(rows.size, 1)
 
     def compact(self) -> None:
         """Let go of what can no longer make an event, so memory follows the cells, not the
@@ -334,7 +362,9 @@ def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list[ChangeEvent]:
     """Still tracks grouped by place. At each place, runs of sightings that no clearing of
     the place interrupts are objects that ``appeared`` there (if seen standing for
-    ``still_s`` in ``min_scans`` scans); the clearings after one are it ``vacated``."""
+    ``still_s`` in ``min_scans`` scans), or, on an earlier session's map, stood there since
+    (``added_since_prior``: most of its place not seen free by this run before); the
+    clearings after one are it ``vacated``."""
     if not still:
         return []
     config, res = recorder.config, recorder.grids.resolution
@@ -361,7 +391,10 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
             ex1, ey1 = sightings[:, X1].max(), sightings[:, Y1].max()
             place = (float(ex0 + ex1) / 2, float(ey0 + ey1) / 2,
                      float((ex1 - ex0 + res) * (ey1 - ey0 + res)))
-            out.append(ChangeEvent(0, "appeared", float(t[0]), float(t[-1]), *place,
+            # standing where the prior was Free when this run first looked: there since
+            kind = ("added_since_prior" if recorder.seen_free_before(
+                ex0, ey0, ex1, ey1, int(episode[0])) < 0.5 else "appeared")
+            out.append(ChangeEvent(0, kind, float(t[0]), float(t[-1]), *place,
                                    len(episode)))
             if gone is not None:
                 out.append(ChangeEvent(0, "vacated", float(stamps[gone[0]]),
