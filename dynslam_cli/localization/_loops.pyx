@@ -70,7 +70,7 @@ def splat_gaussians(double[:, ::1] grid, const double[:, ::1] pts, double ox, do
                         grid[r, c] = v
 
 
-def lattice_scores(const double[:, ::1] grid, const Py_ssize_t[:, ::1] dr,
+def lattice_scores(const float[:, ::1] grid, const Py_ssize_t[:, ::1] dr,
                    const Py_ssize_t[:, ::1] dc, const Py_ssize_t[::1] th,
                    const Py_ssize_t[::1] col, const Py_ssize_t[::1] row):
     """Mean grid value at the cells (row[i] + dr[th[i], k], col[i] + dc[th[i], k]) over k,

@@ -61,7 +61,7 @@ class MapField:
         r, c = np.nonzero(occupied)
         _loops.splat_max(fine, (r + pad).astype(np.intp), (c + pad).astype(np.intp),
                          kernel)
-        self.levels = [fine]
+        self.levels = [fine.astype(np.float32)]  # (single precision: half the memory)
         for k in range(1, self.top + 1):
             self.levels.append(_pool(self.levels[-1], 1 << (k - 1)))
 
