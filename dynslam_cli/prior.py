@@ -42,6 +42,8 @@ SEARCH_CELLS = 3  # the search takes one end point per square of this many cells
 # that sees little along a direction left 2.3 cm there, and the prior's walls along it
 # were taken for objects removed).
 REFINE_TRAVEL_M = 2.0
+OUTLIER_SHARE = 0.1  # an end point is not on the map's walls (a person, a moved box) ...
+EFFECTIVE_POINTS = 40.0  # ... and a scan's end points err together, as this many at most
 
 
 @dataclass(frozen=True)
@@ -151,15 +153,16 @@ class PriorSession:
                 cloud = np.vstack(clouds)
                 cloud = cloud[thin(cloud, SEARCH_CELLS * res)]
                 found, searched = self._search(field, cloud)
-                attempt = (found, searched, max(travel, self.cfg.max_travel_m / 16))
-                if self._problem(found) is None:
+                attempt = (found, searched, max(travel, self.cfg.max_travel_m / 16),
+                           self._evidence(field, cloud, found))
+                if self._problem(found, attempt[3]) is None:
                     decided, until = travel, travel + REFINE_TRAVEL_M  # (then refined)
                 elif travel > self.cfg.max_travel_m:
                     break
         if attempt is None:
             raise InputError(self.prior.folder, "the log has no scan to place in the prior map")
-        found, searched, _ = attempt
-        problem = self._problem(found)
+        found, searched, _, evidence = attempt
+        problem = self._problem(found, evidence)
         if problem is not None:
             raise InputError(self.prior.folder, f"the log's first scans {problem} (matched "
                              f"together over {travel:.1f} m of driving)")
@@ -170,7 +173,8 @@ class PriorSession:
         cloud = np.vstack(clouds)
         pose = self._refine(found.pose, cloud[thin(cloud, res)])
         self.report.update(searched=searched, score=round(found.score, 4),
-                           rival_score=round(found.runner_up, 4), driven_m=round(decided, 2),
+                           rival_score=round(found.runner_up, 4),
+                           rival_evidence=round(min(evidence, 1e9), 2), driven_m=round(decided, 2),
                            refined_over_m=round(travel, 2),
                            start=[pose.x, pose.y, math.degrees(pose.theta)])
         self._start = pose
@@ -207,15 +211,28 @@ class PriorSession:
         c = self.cfg
         return place(field, points, c.min_score, c.rival_m, c.rival_deg, c.rival_share, near)
 
-    def _problem(self, found: Placement) -> str | None:
-        """What is wrong with a placement (None: one place fits well)."""
+    def _problem(self, found: Placement, evidence: float) -> str | None:
+        """What is wrong with a placement whose best place is e^``evidence`` times as likely
+        as its rival (None: one place fits well)."""
         c = self.cfg
         if found.pose is None:
             return (f"fit nowhere in the prior map (no place scores prior.min_score "
                     f"{c.min_score:g}): another place, or a map too old?")
-        if found.runner_up >= c.rival_share * found.score:
+        if evidence < c.rival_evidence:
             p = found.pose
             return (f"fit the prior map in more than one place (best {found.score:.2f} at "
                     f"{p.x:.2f}, {p.y:.2f}, {math.degrees(p.theta):.0f}°; another scores "
-                    f"{found.runner_up:.2f}): give --initial-pose X,Y,DEGREES")
+                    f"{found.runner_up:.2f}, log-likelihood ratio {evidence:.1f}): give "
+                    f"--initial-pose X,Y,DEGREES")
         return None
+
+    @staticmethod
+    def _evidence(field: MapField, points: np.ndarray, found: Placement) -> float:
+        """How much likelier the best place is than its rival: the log-likelihood ratio of
+        the end points at the two (see PriorConfig.rival_evidence); ∞ without a rival."""
+        if found.pose is None or found.rival is None:
+            return math.inf
+        share = 1.0 - OUTLIER_SHARE
+        best = np.log(share * field.values(points, found.pose) + OUTLIER_SHARE)
+        rival = np.log(share * field.values(points, found.rival) + OUTLIER_SHARE)
+        return float(np.sum(best - rival)) * min(1.0, EFFECTIVE_POINTS / max(len(points), 1))

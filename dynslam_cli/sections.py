@@ -552,10 +552,16 @@ class PriorConfig:
     """The first scan's end points must lie on the prior map's walls at least this well
     (the mean of exp(−d²/2σ²) over them, d the distance to the nearest Occupied cell, σ 8
     cm; 1 is every point on a wall): a log from another building is not placed."""
-    rival_share: float = 0.9
-    """A place elsewhere (``rival_m`` away, or turned ``rival_deg``) that scores this share
-    of the best makes the placement ambiguous (a symmetric room, a row of like offices):
-    an error, unless ``--initial-pose`` says which."""
+    rival_evidence: float = 4.6
+    """The best place must be at least e^this times as likely as any other (``rival_m``
+    away, or turned ``rival_deg``), or the placement is ambiguous (a symmetric room, a row
+    of like offices): an error, unless ``--initial-pose`` says which. The likelihood of a
+    place: each end point near a wall with the field's spread or, with probability 0.1, an
+    outlier, the points counting as at most 40 independent ones (neighbouring beams see
+    the same wall). 4.6: a hundred times."""
+    rival_share: float = 0.75
+    """Other places scoring below this share of the best (the mean field value at the end
+    points) are not looked for: the lower, the more of the map is searched finely."""
     rival_m: float = 1.0
     """How far a rival place lies from the best (metres) ..."""
     rival_deg: float = 30.0
@@ -575,6 +581,7 @@ class PriorConfig:
         require([
             (0 < self.min_score < 1, "prior.min_score must be in (0, 1)"),
             (0 < self.rival_share <= 1, "prior.rival_share must be in (0, 1]"),
+            (self.rival_evidence >= 0, "prior.rival_evidence must be >= 0"),
             (self.rival_m > 0 and 0 < self.rival_deg <= 180,
              "prior.rival_m must be > 0 and rival_deg in (0, 180]"),
             (self.max_travel_m >= 0, "prior.max_travel_m must be >= 0"),

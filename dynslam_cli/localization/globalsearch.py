@@ -31,11 +31,12 @@ GREEDY_STARTS = 8  # each level, this many best squares are followed down to a p
 @dataclass(frozen=True)
 class Placement:
     """The best pose of the scan in the map, its score (mean field value at the end points,
-    0–1) and the best score of any pose at least the exclusion away from it."""
+    0–1) and the best score of any pose at least the exclusion away from it, that pose."""
 
     pose: Pose2D | None
     score: float
     runner_up: float
+    rival: Pose2D | None = None
 
 
 class MapField:
@@ -64,6 +65,21 @@ class MapField:
         self.levels = [fine.astype(np.float32)]  # (single precision: half the memory)
         for k in range(1, self.top + 1):
             self.levels.append(_pool(self.levels[-1], 1 << (k - 1)))
+
+
+    def values(self, points: np.ndarray, pose: Pose2D) -> np.ndarray:
+        """The field's value at each end point (N×2, robot frame) of a scan at ``pose``
+        (the cell it falls in, as the search scores it; 0 off the map)."""
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        x = pose.x + c * points[:, 0] - s * points[:, 1]
+        y = pose.y + s * points[:, 0] + c * points[:, 1]
+        fine = self.levels[0]
+        col = np.floor((x - self.origin[0]) / self.resolution + 0.5).astype(np.intp)
+        row = np.floor((y - self.origin[1]) / self.resolution + 0.5).astype(np.intp)
+        on = (row >= 0) & (row < fine.shape[0]) & (col >= 0) & (col < fine.shape[1])
+        out = np.zeros(len(points))
+        out[on] = fine[row[on], col[on]]
+        return out
 
 
 def gaussian_kernel(resolution: float) -> np.ndarray:
@@ -177,7 +193,9 @@ def place(field: MapField, points: np.ndarray, min_score: float = 0.0,
     score, pose = best
     rival = Region(lattice, pose, rival_m, rival_deg, inside=False)
     second = _branch_and_bound(lattice, [*regions, rival], rival_share * score)
-    return Placement(pose, score, second[0] if second is not None else 0.0)
+    if second is None:
+        return Placement(pose, score, 0.0)
+    return Placement(pose, score, *second)
 
 
 def _branch_and_bound(lattice: Lattice, regions: list[Region], floor: float
