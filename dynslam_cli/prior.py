@@ -174,7 +174,8 @@ class PriorSession:
         pose = self._refine(found.pose, cloud[thin(cloud, res)])
         self.report.update(searched=searched, score=round(found.score, 4),
                            rival_score=round(found.runner_up, 4),
-                           rival_evidence=round(min(evidence, 1e9), 2), driven_m=round(decided, 2),
+                           rival_evidence=None if math.isinf(evidence) else round(evidence, 2),
+                           driven_m=round(decided, 2),
                            refined_over_m=round(travel, 2),
                            start=[pose.x, pose.y, math.degrees(pose.theta)])
         self._start = pose
