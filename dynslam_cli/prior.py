@@ -56,15 +56,25 @@ class PriorMap:
     free_thresh: float
     occupied_thresh: float
 
+    @functools.cached_property
+    def occupied(self) -> np.ndarray:
+        """Its Occupied cells (rows × cols, row 0 at the lowest y)."""
+        return self.static.prob > self.occupied_thresh
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        """The centre of its cell (0, 0) in its frame."""
+        g = self.static
+        return g.origin_x + 0.5 * g.resolution, g.origin_y + 0.5 * g.resolution
+
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World (row, col) of the Free and Occupied cells, and which are Occupied."""
         grid = self.static
         prob = grid.prob
-        known = (prob < self.free_thresh) | (prob > self.occupied_thresh)
-        rows, cols = np.nonzero(known)
+        rows, cols = np.nonzero((prob < self.free_thresh) | self.occupied)
         r0 = round(grid.origin_y / grid.resolution)
         c0 = round(grid.origin_x / grid.resolution)
-        return rows + r0, cols + c0, prob[rows, cols] > self.occupied_thresh
+        return rows + r0, cols + c0, self.occupied[rows, cols]
 
 
 def check_lattice(prior: PriorMap, resolution: float) -> None:
@@ -104,10 +114,10 @@ class PriorSession:
         """What the pose graph matches the run's scans against as it goes, to stay in the
         prior's frame: the centres of its Occupied cells (N×2), and the blurred map to make
         a match finer than a cell on."""
-        grid = self.prior.static
-        rows, cols = np.nonzero(grid.prob > self.prior.occupied_thresh)
-        return PriorWalls(np.column_stack((grid.origin_x + (cols + 0.5) * grid.resolution,
-                                           grid.origin_y + (rows + 0.5) * grid.resolution)),
+        g = self.prior.static
+        rows, cols = np.nonzero(self.prior.occupied)
+        return PriorWalls(np.column_stack((g.origin_x + (cols + 0.5) * g.resolution,
+                                           g.origin_y + (rows + 0.5) * g.resolution)),
                           self.blurred)
 
     def seed(self, grids: GridStack) -> None:
@@ -132,14 +142,14 @@ class PriorSession:
         each doubling of the distance driven up to ``max_travel_m``; the place found is made
         finer with the scans of REFINE_TRAVEL_M more. An InputError if no place fits well,
         or more than one does all the way."""
-        grid = self.prior.static
-        res = grid.resolution
-        field = MapField(grid.prob > self.prior.occupied_thresh, res,
-                         (grid.origin_x + 0.5 * res, grid.origin_y + 0.5 * res))
+        res = self.prior.static.resolution
+        field = MapField(self.prior.occupied, res, self.prior.centre)
         measure = ScanMeasurer(self.match, self._motion_noise, None)
         here: Pose2D | None = None  # each scan's pose in the first's frame
         clouds: list[np.ndarray] = []
-        travel, attempt, until, decided = 0.0, None, math.inf, 0.0
+        found: Placement | None = None  # the last search's, from where it was ...
+        searched, evidence, tried_m = "", 0.0, 0.0  # ... and driven how far
+        travel, until, decided = 0.0, math.inf, 0.0
         for scan in scans:
             step = measure.motion(scan).increment  # (the first's: from the odometry's origin)
             if here is not None:
@@ -148,20 +158,19 @@ class PriorSession:
             clouds.append(transform_points(here, scan_points(scan, self.match.max_range_m)))
             if travel >= until:
                 break
-            if until == math.inf and (attempt is None or travel >= 2.0 * attempt[2]
+            if until == math.inf and (found is None or travel >= 2.0 * tried_m
                                       or travel > self.cfg.max_travel_m):
                 cloud = np.vstack(clouds)
                 cloud = cloud[thin(cloud, SEARCH_CELLS * res)]
                 found, searched = self._search(field, cloud)
-                attempt = (found, searched, max(travel, self.cfg.max_travel_m / 16),
-                           self._evidence(field, cloud, found))
-                if self._problem(found, attempt[3]) is None:
+                evidence = self._evidence(field, cloud, found)
+                tried_m = max(travel, self.cfg.max_travel_m / 16)
+                if self._problem(found, evidence) is None:
                     decided, until = travel, travel + REFINE_TRAVEL_M  # (then refined)
                 elif travel > self.cfg.max_travel_m:
                     break
-        if attempt is None:
+        if found is None:
             raise InputError(self.prior.folder, "the log has no scan to place in the prior map")
-        found, searched, _, evidence = attempt
         problem = self._problem(found, evidence)
         if problem is not None:
             raise InputError(self.prior.folder, f"the log's first scans {problem} (matched "
@@ -202,10 +211,7 @@ class PriorSession:
     @functools.cached_property
     def blurred(self) -> BlurredMap:
         """The prior's Occupied cells blurred, to make poses finer than a cell on."""
-        grid = self.prior.static
-        return BlurredMap(grid.prob > self.prior.occupied_thresh, grid.resolution,
-                          (grid.origin_x + 0.5 * grid.resolution,
-                           grid.origin_y + 0.5 * grid.resolution))
+        return BlurredMap(self.prior.occupied, self.prior.static.resolution, self.prior.centre)
 
     def _place(self, field: MapField, points: np.ndarray,
                near: tuple[Pose2D, float, float] | None) -> Placement:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynslam_cli.geometry import transform_points
 from dynslam_cli.localization import _loops
 from dynslam_cli.types import Pose2D
 
@@ -66,13 +67,10 @@ class MapField:
         for k in range(1, self.top + 1):
             self.levels.append(_pool(self.levels[-1], 1 << (k - 1)))
 
-
     def values(self, points: np.ndarray, pose: Pose2D) -> np.ndarray:
         """The field's value at each end point (N×2, robot frame) of a scan at ``pose``
         (the cell it falls in, as the search scores it; 0 off the map)."""
-        c, s = math.cos(pose.theta), math.sin(pose.theta)
-        x = pose.x + c * points[:, 0] - s * points[:, 1]
-        y = pose.y + s * points[:, 0] + c * points[:, 1]
+        x, y = transform_points(pose, points).T
         fine = self.levels[0]
         col = np.floor((x - self.origin[0]) / self.resolution + 0.5).astype(np.intp)
         row = np.floor((y - self.origin[1]) / self.resolution + 0.5).astype(np.intp)
@@ -82,11 +80,17 @@ class MapField:
         return out
 
 
-def gaussian_kernel(resolution: float) -> np.ndarray:
-    """exp(−d²/2σ²) around one Occupied cell, out to FIELD_REACH_SIGMAS σ."""
-    reach = math.ceil(FIELD_REACH_SIGMAS * FIELD_SIGMA_M / resolution)
-    d = np.arange(-reach, reach + 1) * resolution
+def gaussian(d: np.ndarray) -> np.ndarray:
+    """exp(−(dx² + dy²)/2σ²) over the offsets d (m) in x and in y: the field around one
+    Occupied cell (the loop closer's too)."""
     return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / FIELD_SIGMA_M ** 2)
+
+
+def gaussian_kernel(resolution: float) -> np.ndarray:
+    """The field around one Occupied cell on a lattice of ``resolution``, out to
+    FIELD_REACH_SIGMAS σ."""
+    reach = math.ceil(FIELD_REACH_SIGMAS * FIELD_SIGMA_M / resolution)
+    return gaussian(np.arange(-reach, reach + 1) * resolution)
 
 
 def _pool(grid: np.ndarray, h: int) -> np.ndarray:
@@ -109,10 +113,10 @@ HEADING_CELLS = 2.0
 def heading_step(points: np.ndarray, resolution: float) -> float:
     """The heading step (rad) that turns the farthest end point by HEADING_CELLS cells (Hess
     et al., Eq. 7)."""
-    resolution = resolution * HEADING_CELLS
+    turn_m = resolution * HEADING_CELLS
     far = float(np.max(np.hypot(points[:, 0], points[:, 1]))) if len(points) else 1.0
-    far = max(far, resolution)
-    return math.acos(max(-1.0, 1.0 - resolution ** 2 / (2.0 * far ** 2)))
+    far = max(far, turn_m)
+    return math.acos(max(-1.0, 1.0 - turn_m ** 2 / (2.0 * far ** 2)))
 
 
 class Lattice:
@@ -262,6 +266,9 @@ def _descend(lattice: Lattice, regions: list[Region], level: int, th: int, col: 
     """Follow the best child of a square down to a pose: a pose found cheaply, whose score
     is a floor under which nothing needs looking at (None if the square holds none of the
     regions)."""
+    if level == 0:
+        return float(lattice.scores(0, np.array([th]), np.array([col]), np.array([row]))[0]), (
+            th, col, row)
     while level > 0:
         t, c, r = _split(lattice, regions, level, np.array([th]), np.array([col]),
                          np.array([row]))
@@ -270,8 +277,7 @@ def _descend(lattice: Lattice, regions: list[Region], level: int, th: int, col: 
         s = lattice.scores(level - 1, t, c, r)
         k = int(np.argmax(s))
         col, row, level = int(c[k]), int(r[k]), level - 1
-    score = float(lattice.scores(0, np.array([th]), np.array([col]), np.array([row]))[0])
-    return score, (th, col, row)
+    return float(s[k]), (th, col, row)  # (its level-0 score: the pose's own)
 
 
 class BlurredMap:
@@ -300,10 +306,8 @@ class BlurredMap:
         res, (ox, oy) = self.resolution, self.origin
 
         def cost(v: np.ndarray) -> float:
-            x, y, th = pose.x + v[0], pose.y + v[1], pose.theta + v[2]
-            c, s = math.cos(th), math.sin(th)
-            px = x + c * points[:, 0] - s * points[:, 1]
-            py = y + s * points[:, 0] + c * points[:, 1]
+            px, py = transform_points(Pose2D(pose.x + v[0], pose.y + v[1], pose.theta + v[2]),
+                                      points).T
             return -float(np.mean(map_coordinates(self._spline, [(py - oy) / res,
                                                                  (px - ox) / res],
                                                   order=3, mode="constant", prefilter=False)))

@@ -46,14 +46,13 @@ from dynslam_cli.geometry import (
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.ekf import motion_std
-from dynslam_cli.localization.globalsearch import BlurredMap
+from dynslam_cli.localization.globalsearch import BlurredMap, gaussian
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
 from dynslam_cli.localization.scanmatch import icp, scan_points
 from dynslam_cli.sections import LoopConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 FIELD_RES_M = 0.05
-FIELD_SIGMA_M = 0.08
 FIELD_REACH_CELLS = 7  # the field is 0 beyond 0.35 m (4.4 σ) of every point
 COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
 TOP_COARSE = 6
@@ -71,13 +70,10 @@ def _field_kernels() -> tuple[np.ndarray, np.ndarray]:
     """The fine field around one occupied cell, exp(−d²/2σ²) out to FIELD_REACH_CELLS, and
     its max over the coarse pass's window (COARSE_CELLS + 1 cells square): the value at the
     window's cell nearest the centre, as the field falls with distance."""
-    def field(i: np.ndarray) -> np.ndarray:
-        d = i * FIELD_RES_M
-        return np.exp(-0.5 * (d[:, None] ** 2 + d[None, :] ** 2) / FIELD_SIGMA_M ** 2)
-
     h, w = FIELD_REACH_CELLS, COARSE_CELLS // 2
     wide = np.arange(-h - w, h + w + 1)
-    return field(np.arange(-h, h + 1)), field(np.sign(wide) * np.maximum(np.abs(wide) - w, 0))
+    return (gaussian(np.arange(-h, h + 1) * FIELD_RES_M),
+            gaussian(np.sign(wide) * np.maximum(np.abs(wide) - w, 0) * FIELD_RES_M))
 
 
 FINE_KERNEL, COARSE_KERNEL = _field_kernels()
@@ -403,7 +399,7 @@ class LoopCloser:
         return self._close(Closure(i, k, pose, info, self._chi2(i, k, pose, info)), k)
 
     def _try_prior(self, k: int) -> bool:
-        """Node k's scans matched against the prior map (``prior_walls``) near where the
+        """Node k's scans matched against the prior map (``prior``) near where the
         graph has it, every ``attempt_every_m``: a closure to the first node (held where
         the prior placed it), so the run stays in the prior's frame; accepted as any other."""
         cfg, prior, field = self.cfg, self._prior, self._prior_field
