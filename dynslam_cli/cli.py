@@ -568,11 +568,15 @@ def config_command(config_file: Path | None) -> None:
                                  "mcap"]),
               help="Log format: Carmen text, Player 0.3 text, ROS1 .bag, ROS2 bag folder "
                    "(sqlite3 or mcap storage), or a plain MCAP file of ROS1 messages.")
+@click.option("--sessions", type=click.IntRange(1, 50), default=1, show_default=True,
+              help="Runs of the same world, a day apart: five fixtures stand in it, and three "
+                   "change between one session and the next (one taken away, one moved, one "
+                   "brought in); boxes stand still. Written to session1/, session2/, ...")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
              odometry_noise: float, walkers: int | None, beams: int, fov: float,
              max_range: float, range_noise: float, record: str, log_format: str,
-             force: bool) -> None:
+             sessions: int, force: bool) -> None:
     """Simulate a dynamic WORLD and write its log plus the ground truth.
 
     \b
@@ -588,26 +592,51 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
       dynslam simulate corridors -o sim/corridors --duration 900 --seed 1
       dynslam simulate hall -o sim/hall --walkers 8 --odometry-noise 0
       dynslam simulate crowd -o sim/crowd && dynslam process sim/crowd/crowd.log
+
+    \b
+    Two days in the hall: place the second in the first's map, score what changed:
+      dynslam simulate hall -o sim/days --sessions 2
+      dynslam process sim/days/session1/hall.log -o day1
+      dynslam process sim/days/session2/hall.log -o day2 --prior day1
+      dynslam evaluate day2 --truth sim/days/session2/truth.json
+    Each later session starts elsewhere on the route, with its odometry at 0,0,0; its
+    truth.json lists the fixtures' changes (prior_changes) in the first session's frame.
     """
 
     def work() -> None:
-        from dynslam_cli.simulate import LaserModel, OdometryNoise, build_world
+        from dynslam_cli.simulate import (
+            LaserModel,
+            OdometryNoise,
+            build_world,
+            furnish,
+            next_session,
+        )
         from dynslam_cli.simulate import simulate as run_simulation
-        from dynslam_formats.outdir import atomic_output_dir, is_simulation
+        from dynslam_cli.types import Pose2D
+        from dynslam_formats.outdir import atomic_output_dir
         from dynslam_formats.simlogs import stamp_offset, write_simulated
         from dynslam_formats.truth import write_truth
 
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
         noise = OdometryNoise().scaled(odometry_noise)
-        steps, truth = run_simulation(build_world(world, seed, walkers), duration, rate, seed,
-                                      laser, noise)
+        the_world = build_world(world, seed, walkers)
+        spots = furnish(the_world, seed) if sessions > 1 else []
         name = f"{world}{LOG_NAMES[log_format]}"
-        with atomic_output_dir(output, force, ours=is_simulation) as tmp:
-            n = write_simulated(log_format, tmp / name, steps, laser, record, world)
-            truth.stamp_offset_s = stamp_offset(log_format)
-            write_truth(tmp / "truth.json", truth)
-        click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations → {output}", err=True)
-        click.echo(str(output / name))
+        with atomic_output_dir(output, force, ours=_simulated) as tmp:
+            for k in range(1, sessions + 1):
+                changes = next_session(the_world, spots, k, seed) if k > 1 else []
+                steps, truth = run_simulation(the_world, duration, rate, seed + k - 1, laser,
+                                              noise, None if k == 1 else Pose2D(0, 0, 0))
+                truth.session, truth.prior_changes = k, changes
+                folder = tmp if sessions == 1 else tmp / f"session{k}"
+                folder.mkdir(exist_ok=True)
+                n = write_simulated(log_format, folder / name, steps, laser, record, world)
+                truth.stamp_offset_s = stamp_offset(log_format)
+                write_truth(folder / "truth.json", truth)
+                where = output if sessions == 1 else output / f"session{k}"
+                click.echo(f"dynslam: {n} scans, {len(truth.events)} relocations, "
+                           f"{len(changes)} fixtures changed → {where}", err=True)
+                click.echo(str(where / name))
 
     _guarded(work)
 
@@ -659,6 +688,13 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None,
             click.echo(_table(report))
 
     _guarded(work)
+
+
+def _simulated(folder: Path) -> bool:
+    """Whether ``folder`` is what ``dynslam simulate`` wrote (with or without --sessions)."""
+    from dynslam_formats.outdir import is_simulation
+
+    return is_simulation(folder) or is_simulation(folder / "session1")
 
 
 def _point(text: str) -> tuple[float, float]:

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from dynslam_cli.errors import ScoreError
-from dynslam_cli.geometry import wrap_angles
+from dynslam_cli.geometry import distance_to_segments, segment_crosses, wrap_angles
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.result import Landmark
@@ -72,21 +72,6 @@ def aligned_rmse(est: np.ndarray, ref: np.ndarray) -> float:
 
 
 # -- geometry of the truth ------------------------------------------------------------------
-def distance_to_segments(points: np.ndarray, segs: np.ndarray, chunk: int = 4096) -> np.ndarray:
-    """Distance of each point (N×2) to the nearest segment (K×4), in chunks."""
-    if len(segs) == 0:
-        return np.full(len(points), np.inf)
-    a, ab = segs[:, :2], segs[:, 2:] - segs[:, :2]
-    ab2 = np.maximum((ab ** 2).sum(1), 1e-18)
-    out = np.empty(len(points))
-    for s in range(0, len(points), chunk):
-        p = points[s:s + chunk, None, :]
-        t = np.clip(((p - a) * ab).sum(-1) / ab2, 0.0, 1.0)
-        d = p - (a + t[..., None] * ab)
-        out[s:s + chunk] = np.sqrt((d ** 2).sum(-1)).min(1)
-    return out
-
-
 def box_segments(center: list[float], size: list[float]) -> np.ndarray:
     cx, cy = center
     hx, hy = size[0] / 2, size[1] / 2
@@ -181,20 +166,9 @@ def _place_seen_empty(truth: dict[str, Any], center: list[float], since: float, 
             continue
         beyond = c + 0.3 * v / dist  # the beam must reach past the centre
         seg = np.array([[x, y, *beyond]])
-        if not _segments_cross(seg[0], walls):
+        if not segment_crosses(seg[0], walls):
             return True
     return False
-
-
-def _segments_cross(s: np.ndarray, walls: np.ndarray) -> bool:
-    p, r = s[:2], s[2:] - s[:2]
-    q, e = walls[:, :2], walls[:, 2:] - walls[:, :2]
-    den = r[0] * e[:, 1] - r[1] * e[:, 0]
-    w = q - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
-        u = (w[:, 0] * r[1] - w[:, 1] * r[0]) / den
-    return bool(np.any((np.abs(den) > 1e-12) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)))
 
 
 # -- the scores -----------------------------------------------------------------------------
@@ -445,26 +419,76 @@ def score_changes(events: list[ChangeEvent], trajectory: np.ndarray, truth: dict
     for kind in ("appeared", "vacated"):
         mine = [e for e in events if e.kind == kind]
         theirs = [t for t in true if t["kind"] == kind]
-        pairs = sorted((math.hypot(e.x - t["place"][0], e.y - t["place"][1]), i, j)
-                       for i, e in enumerate(mine) for j, t in enumerate(theirs)
-                       if t["from"] - 1e-6 <= e.first_s - offset <= t["until"])
-        used_e, used_t = set(), set()
-        for d, i, j in pairs:
-            if d <= tolerance_m and i not in used_e and j not in used_t:
-                used_e.add(i)
-                used_t.add(j)
-                right.add(mine[i].id)
-        knowable = [j for j, t in enumerate(theirs) if t["detectable"]]
-        out[kind] = {"reported": len(mine), "right": len(used_e),
-                     "precision": _ratio(len(used_e), len(mine)),
-                     "true": len(knowable), "found": len(used_t & set(knowable)),
-                     "recall": _ratio(len(used_t & set(knowable)), len(knowable))}
+        out[kind], used = _tally_events(mine, theirs, tolerance_m, lambda e, t: (
+            t["from"] - 1e-6 <= e.first_s - offset <= t["until"]))
+        right.update(mine[i].id for i in used)
     moving = np.array([(e.x, e.y) for e in events if e.kind == "moving"]).reshape(-1, 2)
     stray = np.array([(e.x, e.y) for e in events
                       if e.kind == "appeared" and e.id not in right]).reshape(-1, 2)
     out["moving"] = {"reported": len(moving),
                      "on_walkers": int(_in_loops(moving, walkers, tolerance_m).sum()),
                      "appeared_on_walkers": int(_in_loops(stray, walkers, tolerance_m).sum())}
+    return out
+
+
+def _tally_events(mine: list[ChangeEvent], theirs: list[dict[str, Any]], tolerance_m: float,
+                  when: Callable[[ChangeEvent, dict[str, Any]], bool]
+                  ) -> tuple[dict[str, Any], set[int]]:
+    """Reported events against true ones of a kind: each pair within ``tolerance_m`` (and
+    ``when`` allows) matched once, nearest first. The tally (precision over what was
+    reported, recall over the true events marked detectable) and the reported ones right."""
+    pairs = sorted((math.hypot(e.x - t["place"][0], e.y - t["place"][1]), i, j)
+                   for i, e in enumerate(mine) for j, t in enumerate(theirs) if when(e, t))
+    used_e: set[int] = set()
+    used_t: set[int] = set()
+    for d, i, j in pairs:
+        if d <= tolerance_m and i not in used_e and j not in used_t:
+            used_e.add(i)
+            used_t.add(j)
+    knowable = {j for j, t in enumerate(theirs) if t["detectable"]}
+    return {"reported": len(mine), "right": len(used_e),
+            "precision": _ratio(len(used_e), len(mine)),
+            "true": len(knowable), "found": len(used_t & knowable),
+            "recall": _ratio(len(used_t & knowable), len(knowable))}, used_e
+
+
+def truth_prior_changes(truth: dict[str, Any]) -> list[dict[str, Any]]:
+    """The events a later session on the earlier one's map should report, from the
+    fixtures changed in between: ``removed_since_prior`` where one stood (detectable if this
+    session saw the place empty), ``added_since_prior`` where one stands now (if this
+    session saw it there)."""
+    max_range, fov = _view(truth)
+    end = truth["poses"][-1][0] + 1.0 if truth["poses"] else 0.0
+    out = []
+    for change in truth.get("prior_changes", []):
+        if change["from"] is not None:
+            out.append({"kind": "removed_since_prior", "object": change["object"],
+                        "place": change["from"], "detectable": _place_seen_empty(
+                            truth, change["from"], 0.0, end, max_range, fov)})
+        if change["to"] is not None:
+            out.append({"kind": "added_since_prior", "object": change["object"],
+                        "place": change["to"],
+                        "detectable": _seen_after(truth, change["object"], 0.0, end)})
+    return out
+
+
+def score_sessions(events: list[ChangeEvent], trajectory: np.ndarray, truth: dict[str, Any],
+                   tolerance_m: float = 0.3) -> dict[str, Any]:
+    """A later session run on the earlier one's map (``--prior``), whose frame is the
+    truth's: the trajectory's error there (no alignment) and the between-session events
+    (``*_since_prior``) matched to the fixtures' changes within ``tolerance_m``."""
+    est = np.array(trajectory, dtype=float)
+    est[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    ref = np.asarray(truth["poses"], dtype=float)
+    i, j = match_stamps(est, ref, 1e-3)
+    error = np.hypot(*(est[i, 1:3] - ref[j, 1:3]).T)
+    out: dict[str, Any] = {"ate_in_prior_frame_m": float(np.sqrt(np.mean(error ** 2)))
+                           if len(i) else None}
+    true = truth_prior_changes(truth)
+    for kind in ("removed_since_prior", "added_since_prior"):
+        out[kind], _ = _tally_events([e for e in events if e.kind == kind],
+                                     [t for t in true if t["kind"] == kind], tolerance_m,
+                                     lambda e, t: True)
     return out
 
 

@@ -1,4 +1,5 @@
-"""SE(2) helpers: angle wrapping, composition, inversion, interpolation, key poses."""
+"""SE(2) helpers: angle wrapping, composition, inversion, interpolation, key poses; points and
+segments."""
 
 from __future__ import annotations
 
@@ -66,3 +67,30 @@ def transform_points(pose: Pose2D, points: np.ndarray) -> np.ndarray:
     c, s = math.cos(pose.theta), math.sin(pose.theta)
     return np.column_stack((pose.x + c * points[:, 0] - s * points[:, 1],
                             pose.y + s * points[:, 0] + c * points[:, 1]))
+
+
+def distance_to_segments(points: np.ndarray, segs: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Distance of each point (N×2) to the nearest segment (K×4), in chunks."""
+    if len(segs) == 0:
+        return np.full(len(points), np.inf)
+    a, ab = segs[:, :2], segs[:, 2:] - segs[:, :2]
+    ab2 = np.maximum((ab ** 2).sum(1), 1e-18)
+    out = np.empty(len(points))
+    for s in range(0, len(points), chunk):
+        p = points[s:s + chunk, None, :]
+        t = np.clip(((p - a) * ab).sum(-1) / ab2, 0.0, 1.0)
+        d = p - (a + t[..., None] * ab)
+        out[s:s + chunk] = np.sqrt((d ** 2).sum(-1)).min(1)
+    return out
+
+
+def segment_crosses(s: np.ndarray, walls: np.ndarray) -> bool:
+    """Whether segment ``s`` (x1 y1 x2 y2) crosses any of ``walls`` (K×4) strictly inside it."""
+    p, r = s[:2], s[2:] - s[:2]
+    q, e = walls[:, :2], walls[:, 2:] - walls[:, :2]
+    den = r[0] * e[:, 1] - r[1] * e[:, 0]
+    w = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+        u = (w[:, 0] * r[1] - w[:, 1] * r[0]) / den
+    return bool(np.any((np.abs(den) > 1e-12) & (t > 0) & (t < 1) & (u >= 0) & (u <= 1)))

@@ -155,14 +155,15 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
 
 def open_prior(folder: Path, config: Config, initial: Pose2D | None = None) -> PriorSession:
     """An earlier session's output folder as the start of a run (``--prior``): its static
-    map, and ``initial``, where the user says the log starts in it (or None)."""
+    and dynamic maps, and ``initial``, where the user says the log starts in it (or None)."""
     from dynslam_cli.errors import InputError
     from dynslam_formats.mapfile import read_map
 
     if not (folder / "static.yaml").is_file():
         raise InputError(str(folder), "not a dynslam output folder (no static.yaml)")
     s = read_map(folder / "static.yaml")
-    prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh)
+    d = read_map(folder / "dynamic.yaml").grid if (folder / "dynamic.yaml").is_file() else None
+    prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh, d)
     return PriorSession(prior, config.map, config.prior, config.match, config.ekf.noise,
                         initial)
 
@@ -174,7 +175,13 @@ def score_output(target: Path, truth: Path | None = None, relations: Path | None
     poses at ``frame``: see :func:`dynslam_cli.evaluate.relation_errors`): what ``dynslam
     evaluate`` prints and ``dynslam batch`` keeps, {"target", "truth"?, "relations"?}."""
     from dynslam_cli.errors import InputError
-    from dynslam_cli.evaluate import MapThresholds, relation_errors, score_changes, score_run
+    from dynslam_cli.evaluate import (
+        MapThresholds,
+        relation_errors,
+        score_changes,
+        score_run,
+        score_sessions,
+    )
     from dynslam_formats.changes import read_changes
     from dynslam_formats.landmarks import read_landmarks
     from dynslam_formats.mapfile import read_map
@@ -199,6 +206,8 @@ def score_output(target: Path, truth: Path | None = None, relations: Path | None
         if (folder / "changes.csv").exists():  # (not in folders of older versions)
             events = _read_table(folder / "changes.csv", read_changes)
             report["truth"]["changes"] = score_changes(events, trajectory, true)
+            if true.get("session", 1) > 1:
+                report["truth"]["sessions"] = score_sessions(events, trajectory, true)
     if relations is not None:
         report["relations"] = relation_errors(read_tum(tum), read_relations(relations),
                                               frame=frame)

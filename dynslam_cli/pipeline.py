@@ -69,7 +69,7 @@ class DynamicSlam:
         mapper = DynamicMapper(c.map, c.laser, c.dynamic, c.changes if changes else None,
                                keep_dynamic)
         if self._prior is not None:
-            self._prior.seed(mapper.grids)
+            self._prior.seed(mapper.grids, mapper.changes)
         return mapper
 
     @property

@@ -33,6 +33,7 @@ from dynslam_cli.localization.globalsearch import (
 )
 from dynslam_cli.localization.loops import PriorWalls
 from dynslam_cli.localization.scanmatch import scan_points, thin
+from dynslam_cli.mapping.changes import ChangeRecorder
 from dynslam_cli.mapping.grid import GridStack, OccupancyMap, logit, steps
 from dynslam_cli.sections import MapConfig, MatchConfig, NoiseModel, PriorConfig
 from dynslam_cli.types import Pose2D, Scan
@@ -49,12 +50,14 @@ EFFECTIVE_POINTS = 40.0  # ... and a scan's end points err together, as this man
 @dataclass(frozen=True)
 class PriorMap:
     """An earlier session's static map as read from its folder: the grid (probabilities
-    as its file gives them) and the thresholds that class its cells."""
+    as its file gives them) and the thresholds that class its cells; and its dynamic map
+    (None where the folder has none)."""
 
     folder: str
     static: OccupancyMap
     free_thresh: float
     occupied_thresh: float
+    dynamic: OccupancyMap | None = None
 
     @functools.cached_property
     def occupied(self) -> np.ndarray:
@@ -69,12 +72,22 @@ class PriorMap:
 
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World (row, col) of the Free and Occupied cells, and which are Occupied."""
-        grid = self.static
-        prob = grid.prob
-        rows, cols = np.nonzero((prob < self.free_thresh) | self.occupied)
-        r0 = round(grid.origin_y / grid.resolution)
-        c0 = round(grid.origin_x / grid.resolution)
-        return rows + r0, cols + c0, self.occupied[rows, cols]
+        rows, cols = np.nonzero((self.static.prob < self.free_thresh) | self.occupied)
+        return *_world_cells(self.static, rows, cols), self.occupied[rows, cols]
+
+    def standing(self) -> tuple[np.ndarray, np.ndarray]:
+        """World (row, col) of the cells its D held Occupied at its end: objects standing
+        where S was Free (none without a dynamic map)."""
+        if self.dynamic is None:
+            return np.zeros(0, np.intp), np.zeros(0, np.intp)
+        return _world_cells(self.dynamic, *np.nonzero(self.dynamic.prob > self.occupied_thresh))
+
+
+def _world_cells(grid: OccupancyMap, rows: np.ndarray, cols: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A grid's (row, col) as world (row, col): counted from the frame's origin."""
+    return (rows + round(grid.origin_y / grid.resolution),
+            cols + round(grid.origin_x / grid.resolution))
 
 
 def check_lattice(prior: PriorMap, resolution: float) -> None:
@@ -120,11 +133,13 @@ class PriorSession:
                                            g.origin_y + (rows + 0.5) * g.resolution)),
                           self.blurred)
 
-    def seed(self, grids: GridStack) -> None:
+    def seed(self, grids: GridStack, changes: ChangeRecorder | None) -> None:
         """Start S (the layer "static") from the prior's Free and Occupied cells, each as
-        sure as the grid holds."""
+        sure as the grid holds; tell ``changes`` what stood in the prior's D."""
         rows, cols, occupied = self._cells
         grids.seed("static", rows, cols, self._seed[occupied.astype(np.intp)])
+        if changes is not None:
+            changes.note_prior_standing(*self.prior.standing())
 
     def to_map(self, scan: Scan) -> Pose2D:
         """The scan's odometry in the prior's frame. The first scan of the run is the log's

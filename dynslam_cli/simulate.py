@@ -19,11 +19,31 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from dynslam_cli.geometry import compose, relative, wrap_angle
+from dynslam_cli.geometry import (
+    compose,
+    distance_to_segments,
+    relative,
+    segment_crosses,
+    wrap_angle,
+)
 from dynslam_cli.types import Pose2D
 
 WORLD_NAMES = ("corridors", "arena", "hall", "crowd", "office")
 SEEN_BEFORE_MOVE = 10  # scans that must hit a box at its place before it is moved again
+
+# Fixtures: furniture that stands still through a session and may be moved between sessions
+# (``dynslam simulate --sessions``). 0.4 m square, kept clear of walls (objects close to walls
+# are a problem of their own), of the robot's path and of everything else that moves, and in
+# view of the path.
+FIXTURE_HALF_M = 0.2
+FIXTURE_WALL_GAP_M = 0.25
+FIXTURE_PATH_GAP_M = 0.7
+FIXTURE_MOVER_GAP_M = 0.8
+FIXTURE_VIEW_M = 3.5
+FIXTURE_SPACING_M = 1.5
+FIXTURE_VIEW_STEPS = 30  # steps of the path from which a fixture's spot is in sight
+FIXTURE_SPOTS = 8  # places a world's fixtures may stand
+FIXTURES = 5  # standing in the first session
 
 
 @dataclass(frozen=True)
@@ -106,17 +126,26 @@ class World:
     relocations: int = 0
     relocate_in_view: bool = False
     speed: float = 0.5
+    fixtures: list[Box] = field(default_factory=list)
+    first_waypoint: int = 0
+
+    @property
+    def structure(self) -> np.ndarray:
+        """What stands still all run: the walls and the fixtures' sides (K×4 segments)."""
+        return np.vstack([self.walls, *(f.segments() for f in self.fixtures)])
 
     def static_corners(self) -> list[tuple[float, float]]:
-        """End points shared by two non-collinear walls: the true static corners."""
+        """End points shared by two non-collinear walls or fixture sides: the true static
+        corners."""
         ends: dict[tuple[float, float], list[int]] = {}
-        for k, (x1, y1, x2, y2) in enumerate(self.walls):
+        structure = self.structure
+        for k, (x1, y1, x2, y2) in enumerate(structure):
             for p in ((round(x1, 6), round(y1, 6)), (round(x2, 6), round(y2, 6))):
                 ends.setdefault(p, []).append(k)
         corners = []
         for p, ks in ends.items():
             if len(ks) >= 2:
-                a, b = self.walls[ks[0]], self.walls[ks[1]]
+                a, b = structure[ks[0]], structure[ks[1]]
                 da, db = a[2:] - a[:2], b[2:] - b[:2]
                 if abs(da[0] * db[1] - da[1] * db[0]) > 1e-9:
                     corners.append(p)
@@ -267,44 +296,55 @@ class Truth:
     events: list[dict] = field(default_factory=list)
     hits: list[list[str]] = field(default_factory=list)
     stamp_offset_s: float = 0.0  # the log's stamps are the truth's times plus this
+    session: int = 1
+    fixtures: dict[str, dict] = field(default_factory=dict)
+    prior_changes: list[dict] = field(default_factory=list)
+    """Fixtures moved since the session before: {"object", "from", "to"}, either place None
+    for one taken away or brought in."""
 
 
 def _world_geometry(world: World, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray, list[str]]:
-    names = ["wall"] + [b.id for b in world.boxes] + [w.id for w in world.walkers]
-    segs = [world.walls] + [b.segments() for b in world.boxes]
+    blocks = world.boxes + world.fixtures
+    names = ["wall"] + [b.id for b in blocks] + [w.id for w in world.walkers]
+    segs = [world.walls] + [b.segments() for b in blocks]
     owner = [np.zeros(len(world.walls), np.int64)] + [np.full(4, 1 + i, np.int64)
-                                                     for i in range(len(world.boxes))]
+                                                     for i in range(len(blocks))]
     discs = np.array([(*w.position(t), w.radius) for w in world.walkers]).reshape(-1, 3)
-    disc_owner = 1 + len(world.boxes) + np.arange(len(world.walkers), dtype=np.int64)
+    disc_owner = 1 + len(blocks) + np.arange(len(world.walkers), dtype=np.int64)
     return np.vstack(segs), np.concatenate(owner), discs, disc_owner, names
 
 
 def simulate(world: World, duration_s: float, rate_hz: float = 10.0, seed: int = 0,
-             laser: LaserModel | None = None, noise: OdometryNoise | None = None
-             ) -> tuple[Iterator[SimStep], Truth]:
-    """Drive the route for ``duration_s``; returns the step stream and the truth it fills."""
+             laser: LaserModel | None = None, noise: OdometryNoise | None = None,
+             odometry_start: Pose2D | None = None) -> tuple[Iterator[SimStep], Truth]:
+    """Drive the route for ``duration_s``; returns the step stream and the truth it fills.
+    The odometry starts at ``odometry_start`` (default: the true start, so the log's frame
+    is the world's)."""
     laser = laser or LaserModel()
     noise = noise if noise is not None else OdometryNoise()
-    truth = Truth(world=world.name, seed=seed, laser=laser, walls=world.walls.tolist(),
+    truth = Truth(world=world.name, seed=seed, laser=laser, walls=world.structure.tolist(),
                   corners=world.static_corners())
+    truth.fixtures = {f.id: {"place": list(f.center), "size": [2 * f.half_x, 2 * f.half_y]}
+                      for f in world.fixtures}
     for b in world.boxes:
         truth.objects[b.id] = {"kind": "box", "size": [2 * b.half_x, 2 * b.half_y],
                                "positions": [[0.0, list(b.center)]]}
     for w in world.walkers:
         truth.objects[w.id] = {"kind": "walker", "radius": w.radius, "loop": w.loop,
                                "speed": w.speed, "phase_m": w.phase_m}
-    return _run(world, duration_s, rate_hz, seed, laser, noise, truth), truth
+    odom = world.start if odometry_start is None else odometry_start
+    return _run(world, duration_s, rate_hz, seed, laser, noise, truth, odom), truth
 
 
 def _run(world: World, duration_s: float, rate_hz: float, seed: int, laser: LaserModel,
-         noise: OdometryNoise, truth: Truth) -> Iterator[SimStep]:
+         noise: OdometryNoise, truth: Truth, odom: Pose2D) -> Iterator[SimStep]:
     rng = np.random.default_rng(seed + 1)
     dt = 1.0 / rate_hz
     fov = math.radians(laser.fov_deg)
     angles = -fov / 2 + fov / max(laser.beams - 1, 1) * np.arange(laser.beams)
-    pose, odom = world.start, world.start
-    target = 0
+    pose = world.start
+    target = world.first_waypoint
     n_steps = round(duration_s * rate_hz) + 1
     # Relocations spread over the first 3/4 of the run, so the robot revisits afterwards.
     event_times = [(k + 1) * 0.75 * duration_s / (world.relocations + 1)
@@ -312,7 +352,7 @@ def _run(world: World, duration_s: float, rate_hz: float, seed: int, laser: Lase
     next_event = 0
     # A box is moved again only after the robot has had a look at it where it was put (as
     # the experimenters of Table 4 did), so every relocation can be judged.
-    seen_since_move = {b.id: 0 for b in world.boxes} | {w.id: 0 for w in world.walkers}
+    seen_since_move = {o.id: 0 for o in [*world.boxes, *world.fixtures, *world.walkers]}
     for step in range(n_steps):
         t = step * dt
         segs, owner, discs, disc_owner, names = _world_geometry(world, t)
@@ -393,3 +433,85 @@ def _try_relocate(world: World, box: Box, pose: Pose2D, angles: np.ndarray,
     truth.events.append({"time": t, "object": box.id, "from": list(old), "to": list(new),
                          "in_view": seen})
     return True
+
+
+# -- sessions: the same world on another day ------------------------------------------------
+def driven_path(world: World, steps: int = 3000, dt: float = 0.1) -> np.ndarray:
+    """The robot's positions (N×2) over its first ``steps`` steps from the start."""
+    pose, target = world.start, world.first_waypoint
+    out = np.empty((steps, 2))
+    for k in range(steps):
+        out[k] = pose.x, pose.y
+        pose, target = _drive(world, pose, target, dt)
+    return out
+
+
+def fixture_spots(world: World, seed: int) -> list[tuple[float, float]]:
+    """FIXTURE_SPOTS places where a fixture may stand: clear of the walls, of the robot's path,
+    of the walkers' loops and the boxes' spots, apart from one another, and in sight of
+    FIXTURE_VIEW_STEPS steps of the path within FIXTURE_VIEW_M. Drawn at random from
+    ``seed``."""
+    rng = np.random.default_rng(seed + 2)
+    path = driven_path(world)
+    ends = world.walls.reshape(-1, 2)
+    candidates = ends.min(0) + (ends.max(0) - ends.min(0)) * rng.random((5000, 2))
+    half_diagonal = FIXTURE_HALF_M * math.sqrt(2)
+    keep = distance_to_segments(candidates, world.walls) >= FIXTURE_HALF_M + FIXTURE_WALL_GAP_M
+    path_segments = np.hstack((path[:-5:5], path[5::5]))
+    to_path = distance_to_segments(candidates, path_segments)
+    keep &= (to_path >= FIXTURE_PATH_GAP_M + half_diagonal) & (to_path <= FIXTURE_VIEW_M)
+    for w in world.walkers:
+        loop = np.array([*w.loop, w.loop[0]], dtype=float)
+        keep &= (distance_to_segments(candidates, np.hstack((loop[:-1], loop[1:])))
+                 >= w.radius + FIXTURE_MOVER_GAP_M + half_diagonal)
+    for b in world.boxes:
+        for spot in b.spots:
+            keep &= (distance_to_segments(candidates, b.segments(spot))
+                     >= FIXTURE_MOVER_GAP_M + half_diagonal)
+    spots: list[tuple[float, float]] = []
+    for c in candidates[keep]:
+        if any(math.dist(c, s) < FIXTURE_SPACING_M for s in spots):
+            continue
+        near = path[((path - c) ** 2).sum(1) <= FIXTURE_VIEW_M ** 2]
+        if sum(not segment_crosses(np.array([*p, *c]), world.walls)
+               for p in near) >= FIXTURE_VIEW_STEPS:
+            spots.append((round(float(c[0]), 3), round(float(c[1]), 3)))
+            if len(spots) == FIXTURE_SPOTS:
+                return spots
+    raise ValueError(f"{world.name}: room for {len(spots)} fixtures, not {FIXTURE_SPOTS}")
+
+
+def furnish(world: World, seed: int) -> list[tuple[float, float]]:
+    """Make ``world`` a first session's: FIXTURES fixtures standing in it, and its boxes
+    standing still (what changes is what changes between sessions, so that each session's
+    start sees the world as the one before left it); returns every spot a fixture may stand
+    on in later sessions."""
+    world.relocations = 0
+    spots = fixture_spots(world, seed)
+    world.fixtures = [Box(f"fixture{i}", FIXTURE_HALF_M, FIXTURE_HALF_M, [spots[i]])
+                      for i in range(FIXTURES)]
+    return spots
+
+
+def next_session(world: World, spots: list[tuple[float, float]], session: int, seed: int
+                 ) -> list[dict]:
+    """Turn ``world``, as the session before left it, into session ``session`` (2, 3, ...):
+    three fixtures changed (one taken away, one moved to a free spot, one brought in), and
+    the robot starting elsewhere on its route. Returns the changes, as
+    :attr:`Truth.prior_changes` lists them."""
+    rng = np.random.default_rng(seed + 1000 * session)
+    taken = {f.center for f in world.fixtures}
+    free = [s for s in spots if s not in taken]
+    gone, moved = (world.fixtures[int(i)] for i in rng.choice(len(world.fixtures), 2, False))
+    to_move, to_add = (free[int(i)] for i in rng.choice(len(free), 2, False))
+    brought = Box(f"fixture{FIXTURES + session - 2}", FIXTURE_HALF_M, FIXTURE_HALF_M, [to_add])
+    changes = [{"object": gone.id, "from": list(gone.center), "to": None},
+               {"object": moved.id, "from": list(moved.center), "to": list(to_move)},
+               {"object": brought.id, "from": None, "to": list(to_add)}]
+    moved.spots = [to_move]
+    world.fixtures = [f for f in world.fixtures if f is not gone] + [brought]
+    j = (session - 1) % len(world.route)
+    (ax, ay), (bx, by) = world.route[j], world.route[(j + 1) % len(world.route)]
+    world.start = Pose2D((ax + bx) / 2, (ay + by) / 2, math.atan2(by - ay, bx - ax))
+    world.first_waypoint = (j + 1) % len(world.route)
+    return changes

@@ -29,6 +29,9 @@ def write_truth(path: Path, truth: Truth) -> None:
         "hits": truth.hits,
         "stamp_offset_s": truth.stamp_offset_s,
     }
+    if truth.session > 1 or truth.fixtures:
+        data |= {"session": truth.session, "fixtures": truth.fixtures,
+                 "prior_changes": truth.prior_changes}
     path.write_text(json.dumps(data, separators=(",", ":")) + "\n", encoding="utf-8")
 
 

@@ -93,6 +93,27 @@ class ChangeRecorder:
         self._first_free = np.zeros(0, np.int32)
         """On an earlier session's map (a seeded grid): the scan that first saw each cell
         free in this run, plus one (0: none yet), by flat index."""
+        self._prior_standing = np.zeros(0, np.int64)
+        """The cells the earlier session's D held Occupied at its end (objects standing
+        there then), as sorted :func:`_cell_keys`."""
+
+    def note_prior_standing(self, rows: np.ndarray, cols: np.ndarray) -> None:
+        """What stood in the earlier session's D at its end (world rows and columns)."""
+        self._prior_standing = np.unique(_cell_keys(rows, cols))
+
+    def stood_in_prior(self, x0: float, y0: float, x1: float, y1: float) -> int:
+        """How many cells of a box (map frame, m) held an object at the earlier session's
+        end (its D Occupied there)."""
+        rows, cols = self._box_cells(x0, y0, x1, y1)
+        return int(np.count_nonzero(np.isin(_cell_keys(rows, cols), self._prior_standing)))
+
+    def _box_cells(self, x0: float, y0: float, x1: float, y1: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        res = self.grids.resolution
+        rows, cols = np.meshgrid(np.arange(math.floor(y0 / res), math.floor(y1 / res) + 1),
+                                 np.arange(math.floor(x0 / res), math.floor(x1 / res) + 1),
+                                 indexing="ij")
+        return rows.ravel(), cols.ravel()
 
     def record(self, stamp: float, obs: Observation, hit_on_free: np.ndarray) -> None:
         """One scan's evidence: its observation (before the maps are updated with it) and
@@ -131,11 +152,8 @@ class ChangeRecorder:
         scan ``scan`` (on an earlier session's map only; else 1)."""
         if not self.grids.seeded:
             return 1.0
-        res = self.grids.resolution
-        rows, cols = np.meshgrid(np.arange(math.floor(y0 / res), math.floor(y1 / res) + 1),
-                                 np.arange(math.floor(x0 / res), math.floor(x1 / res) + 1),
-                                 indexing="ij")
-        flat = self.grids.flat_cells(rows.ravel(), cols.ravel())
+        rows, cols = self._box_cells(x0, y0, x1, y1)
+        flat = self.grids.flat_cells(rows, cols)
         flat = flat[(flat >= 0) & (flat < len(self._first_free))]
         first = self._first_free[flat]
         return float(np.count_nonzero((first > 0) & (first <= scan))) / max(rows.size, 1)
@@ -391,15 +409,25 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
             ex1, ey1 = sightings[:, X1].max(), sightings[:, Y1].max()
             place = (float(ex0 + ex1) / 2, float(ey0 + ey1) / 2,
                      float((ex1 - ex0 + res) * (ey1 - ey0 + res)))
-            # standing where the prior was Free when this run first looked: there since
-            kind = ("added_since_prior" if recorder.seen_free_before(
-                ex0, ey0, ex1, ey1, int(episode[0])) < 0.5 else "appeared")
-            out.append(ChangeEvent(0, kind, float(t[0]), float(t[-1]), *place,
-                                   len(episode)))
+            # standing where the prior's S was Free when this run first looked: there
+            # since, unless the prior's D held it standing at its end (no change then)
+            kind: str | None = "appeared"
+            if recorder.seen_free_before(ex0, ey0, ex1, ey1, int(episode[0])) < 0.5:
+                held = recorder.stood_in_prior(ex0 - res, ey0 - res, ex1 + res, ey1 + res)
+                kind = None if 2 * held >= np.median(sightings[:, CELLS]) else (
+                    "added_since_prior")
+            if kind is not None:
+                out.append(ChangeEvent(0, kind, float(t[0]), float(t[-1]), *place,
+                                       len(episode)))
             if gone is not None:
                 out.append(ChangeEvent(0, "vacated", float(stamps[gone[0]]),
                                        float(stamps[gone[-1]]), *place, len(gone)))
     return out
+
+
+def _cell_keys(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """One int64 per world cell (|col| < 2^31)."""
+    return rows.astype(np.int64) * (1 << 32) + cols.astype(np.int64)
 
 
 def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
