@@ -46,9 +46,11 @@ bench: install
 
 # Accuracy of every built-in world, with and without the paper's components, and of the
 # raw benchmark logs against their relations (and their spread over perturbed copies), and
-# of the Radish corrected logs under drifting odometry of our own (perfect, moderate, harsh).
+# of the Radish corrected logs under drifting odometry of our own (perfect, moderate, harsh),
+# and of a second session of every world placed on its first (--prior).
 accuracy: install
 	$(BIN)/python bench/accuracy.py
+	$(BIN)/python bench/sessions.py
 	$(BIN)/python bench/relations.py
 	$(BIN)/python bench/stability.py
 	$(BIN)/python bench/radish.py

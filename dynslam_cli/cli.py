@@ -661,7 +661,9 @@ def evaluate(target: Path, truth: Path | None, relations: Path | None,
     precision / recall / ghost rate, dynamic map precision, moved objects detected, vacated
     places cleared, landmarks on true corners; change events (changes.csv) matched to the
     true ones within 0.3 m: precision and recall of appeared and vacated, moving tracks in
-    the walkers' loops.
+    the walkers' loops. For a later session (simulate --sessions) run with --prior: its
+    trajectory's error in the prior's frame (not aligned), and removed_since_prior and
+    added_since_prior against the fixtures changed since the session before.
     With --relations: the Kümmerle et al. (2009) relation metric (translational m,
     rotational deg, mean ± std, plus squared errors and matched/unmatched counts), and
     fitted_frame: the point on the robot whose relations match best, and the error there
