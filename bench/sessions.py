@@ -8,7 +8,9 @@ its trajectory's error in the first's frame (no alignment) and the between-sessi
 whose second session is refused (ambiguous or poor placement) prints the tool's message.
 
     python bench/sessions.py [--worlds hall,office] [--odometry-noise 1] [--duration 600]
-        [--seed 0] [--json OUT]
+        [--seed 0] [--config FILE.toml] [--json OUT]
+
+``--config`` is given to both sessions' ``dynslam process`` (e.g. ``[prior] max_travel_m``).
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ def dynslam(*args: str) -> subprocess.CompletedProcess:
                           text=True)
 
 
-def two_sessions(world: str, folder: Path, noise: float, duration: float, seed: int) -> dict:
+def two_sessions(world: str, folder: Path, noise: float, duration: float, seed: int,
+                 config: list[str]) -> dict:
     sim = folder / "sim"
     made = dynslam("simulate", world, "-o", str(sim), "--sessions", "2", "--duration",
                    str(duration), "--odometry-noise", str(noise), "--seed", str(seed))
@@ -37,9 +40,9 @@ def two_sessions(world: str, folder: Path, noise: float, duration: float, seed: 
         return {"world": world, "error": made.stderr.strip()}
     logs = made.stdout.split()
     first, second = folder / "day1", folder / "day2"
-    dynslam("process", logs[0], "-o", str(first), "-q")
+    dynslam("process", logs[0], "-o", str(first), "-q", *config)
     start = time.perf_counter()
-    run = dynslam("process", logs[1], "-o", str(second), "-q", "--prior", str(first))
+    run = dynslam("process", logs[1], "-o", str(second), "-q", "--prior", str(first), *config)
     seconds = time.perf_counter() - start
     if run.returncode:
         return {"world": world, "error": run.stderr.strip()}
@@ -56,13 +59,15 @@ def main() -> None:
     ap.add_argument("--odometry-noise", type=float, default=1.0)
     ap.add_argument("--duration", type=float, default=600)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--config", type=Path, help="A config file for both sessions' runs.")
     ap.add_argument("--json", type=Path, help="Also write the rows here.")
     args = ap.parse_args()
     rows = []
     print("world      ATE prior frame  removed P/R (n)   added P/R (n)")
     for world in args.worlds.split(","):
         with tempfile.TemporaryDirectory() as d:
-            row = two_sessions(world, Path(d), args.odometry_noise, args.duration, args.seed)
+            row = two_sessions(world, Path(d), args.odometry_noise, args.duration, args.seed,
+                               ["--config", str(args.config.resolve())] if args.config else [])
         rows.append(row)
         if "error" in row:
             print(f"{world:<10} {row['error']}", flush=True)

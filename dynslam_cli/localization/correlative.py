@@ -75,6 +75,61 @@ class OdometryScale:
         self.scale = tuple(min(max(math.sqrt(m), lo), hi) for m in self._mean_sq)
 
 
+class OdometryCalibration:
+    """The wheel odometry's systematic errors, learned from the log as it is read: a scale
+    of its translation, a scale of its rotation and a heading drift per metre driven, such
+    that the true increment is (s_t·dx, s_t·dy, s_r·dθ + b·|d|). Least squares of the
+    matched increments (the scan's own measure, before the odometry is fused into it)
+    against the wheel's, forgetting over LEARN_SCANS matched scans, each parameter pulled
+    toward no error by PRIOR_STEPS steps' worth of evidence (so a few matches move it
+    little); kept within SCALE_LIMIT and DRIFT_LIMIT_DEG_PER_M. A bias removed, what is left
+    of the odometry's error is random, the part its noise model can state honestly."""
+
+    LEARN_SCANS = 2000
+    PRIOR_STEPS = 50.0
+    STEP_M, STEP_RAD = 0.05, 0.02  # a typical step, to weigh the prior
+    SCALE_LIMIT = (0.8, 1.25)
+    DRIFT_LIMIT_DEG_PER_M = 5.0
+
+    def __init__(self, enabled: bool = False) -> None:
+        self.enabled = enabled
+        p = self.PRIOR_STEPS
+        self._tt = np.array([p * self.STEP_M ** 2, p * self.STEP_M ** 2])  # Σ m·w, Σ w·w
+        # rotation: normal equations over (s_r, b): Σ [w_θ, d]ᵀ[w_θ, d] and Σ [w_θ, d]ᵀ m_θ
+        self._rr = np.diag([p * self.STEP_RAD ** 2, p * self.STEP_M ** 2])
+        self._rm = np.array([p * self.STEP_RAD ** 2, 0.0])
+        self._prior = (self._tt.copy(), self._rr.copy(), self._rm.copy())
+        self.scale_t, self.scale_r, self.drift = 1.0, 1.0, 0.0  # drift: rad per m
+
+    def correct(self, wheel: Pose2D) -> Pose2D:
+        """A wheel increment (previous robot frame) with the learned errors taken out."""
+        if not self.enabled:
+            return wheel
+        d = math.hypot(wheel.x, wheel.y)
+        return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t,
+                      wheel.theta * self.scale_r + self.drift * d)
+
+    def learn(self, measured: Pose2D, wheel: Pose2D) -> None:
+        """One matched increment and the raw wheel increment, both in the previous robot
+        frame."""
+        if not self.enabled:
+            return
+        keep = 1.0 - 1.0 / self.LEARN_SCANS
+        tt0, rr0, rm0 = self._prior  # (forgetting the data, never the prior)
+        d = math.hypot(wheel.x, wheel.y)
+        a = np.array([wheel.theta, d])
+        self._tt = tt0 + keep * (self._tt - tt0) + np.array(
+            [measured.x * wheel.x + measured.y * wheel.y, d * d])
+        self._rr = rr0 + keep * (self._rr - rr0) + np.outer(a, a)
+        self._rm = rm0 + keep * (self._rm - rm0) + a * math.remainder(measured.theta, math.tau)
+        lo, hi = self.SCALE_LIMIT
+        self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
+        s_r, b = np.linalg.solve(self._rr, self._rm)
+        limit = math.radians(self.DRIFT_LIMIT_DEG_PER_M)
+        self.scale_r = min(max(float(s_r), lo), hi)
+        self.drift = min(max(float(b), -limit), limit)
+
+
 class Posterior(NamedTuple):
     """The search's best pose, the covariance (x, y, θ) of the posterior over the window
     around it, and the best pose's share of end points that landed on the submap's walls

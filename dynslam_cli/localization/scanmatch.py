@@ -28,6 +28,7 @@ from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
     LogField,
+    OdometryCalibration,
     OdometryScale,
     log_field,
     sampled_walls,
@@ -67,13 +68,15 @@ def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
 
 class Placed(NamedTuple):
     """A scan placed in the matcher's frame: its pose, where that came from, its covariance
-    (None: the odometry's noise model applies), and whether it agreed with the scan's wheel
-    odometry (the next retry's anchor)."""
+    (None: the odometry's noise model applies), whether it agreed with the scan's wheel
+    odometry (the next retry's anchor), and the match's own pose where the odometry was
+    fused into it."""
 
     pose: Pose2D
     source: str
     cov: np.ndarray | None = None
     agrees: bool = True
+    measured: Pose2D | None = None  # the scan's own pose, before the odometry was fused in
 
 
 class IcpResult(NamedTuple):
@@ -236,6 +239,7 @@ class ScanMatcher:
         self._wheel = WheelOdometry()
         self._last_increment = Pose2D()
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
+        self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry)
         # the last scan whose match agreed with its wheel odometry: its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
 
@@ -246,12 +250,14 @@ class ScanMatcher:
         "fallback" (no good match: the wheel odometry's) or "odometry" (no local map to
         match against)."""
         cfg = self.cfg
-        wheel = self._wheel.increment(scan.odom)
+        raw = self._wheel.increment(scan.odom)
+        wheel = self._calibration.correct(raw)
         guess = compose(self._pose, wheel)
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
-        pose, source, cov, agrees = (Placed(guess, "odometry") if reference is None
-                                     else self._match(scan, pts, reference, guess, wheel))
+        pose, source, cov, agrees, measured = (
+            Placed(guess, "odometry") if reference is None
+            else self._match(scan, pts, reference, guess, wheel))
         if agrees:
             self._anchor = (pose, scan.odom)
         inc = relative(self._pose, pose)
@@ -259,6 +265,8 @@ class ScanMatcher:
             cov = increment_covariance(cov, self._pose)
         if source == "matched" and cfg.method == "correlative":
             self._odometry.learn(inc, wheel, cfg.correlative.odometry)
+            if measured is not None:  # (a match the odometry was fused into)
+                self._calibration.learn(relative(self._pose, measured), raw)
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
@@ -334,7 +342,7 @@ class ScanMatcher:
                             else cfg.correlative.odometry_glitch)
                  if source == "matched" else None)
         if fused is not None:
-            return Placed(fused[0], source, fused[1], agrees)
+            return Placed(fused[0], source, fused[1], agrees, refined.pose)
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
 
