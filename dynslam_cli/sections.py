@@ -370,6 +370,14 @@ class MatchConfig:
     """The local map keeps one point per square of this side (overlapping key scans)."""
     normal_neighbours: int = 6
     """Points whose spread gives a local-map point's normal."""
+    within_reach: bool = False
+    """Match only the end points the local map could have seen: within the laser's reach
+    (less ``reach_margin_m``) of one of its key scans' poses, at the odometry's guess. The
+    end points beyond, a band as deep as the robot moved since the last key scan, land
+    where the local map has no wall yet and pull the match back (a corridor's walls seen
+    up to the laser's range make every match short)."""
+    reach_margin_m: float = 0.3
+    """How far inside a key scan's reach an end point must be to be matched (metres)."""
     effective_pairs: float = 100.0
     """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
     against shares its key scans' errors): for the match's information they count as this

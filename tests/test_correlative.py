@@ -204,6 +204,28 @@ def test_driving_straight_along_a_wall_seen_at_grazing_angles_is_not_standing_st
     assert math.hypot(err.x, err.y) < 0.05 and abs(err.theta) < math.radians(0.3)
 
 
+def test_end_points_beyond_the_local_maps_reach_are_not_matched():
+    """A key scan seen from the origin by an 8 m laser: a wall end point 7.5 m away may be
+    on its walls, one 7.9 m away lies in the band it could not see (within the margin)."""
+    from dynslam_cli.localization.scanmatch import LocalMap
+
+    local = LocalMap(MatchConfig())
+    local.add(Pose2D(), np.array([[2.0, 1.0], [3.0, 1.0]]), reach=8.0)
+    local.add(Pose2D(0.5, 0.0, 0.0), np.array([[2.0, 1.0], [3.0, 1.0]]), reach=8.0)
+    seen = local.within_reach(np.array([[7.5, 1.0], [8.1, 1.0], [8.4, 1.0], [-7.0, 1.0]]),
+                              margin=0.3)
+    assert seen.tolist() == [True, True, False, True]
+    # matching within reach still drives straight down a plain corridor at its speed
+    matcher = ScanMatcher(MatchConfig(method="correlative", within_reach=True), NoiseModel())
+    estimate = Pose2D()
+    for k in range(80):
+        true = Pose2D(0.08 * k, 0.0, 0.0)
+        inc, _, _ = matcher.increment(corridor_scan(true, true, 0.1 * k))
+        estimate = compose(estimate, inc)
+    err = relative(true, estimate)
+    assert math.hypot(err.x, err.y) < 0.05 and abs(err.theta) < math.radians(0.3)
+
+
 def test_walls_between_far_end_points_are_sampled_but_not_across_an_edge():
     from dynslam_cli.localization.correlative import sampled_walls
 

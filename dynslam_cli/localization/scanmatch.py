@@ -54,6 +54,7 @@ MAX_TURN_SIGMAS = 3.0  # a match may turn this many prior standard deviations fr
 # The correlative table is made anew from the local map's key scans after this many new ones
 # (between, each is added to it): a table of 64 key scans costs as much as matching ten scans.
 REBUILD_KEYS = 16
+MIN_POINTS = 20  # fewer end points than this are not matched
 
 
 def scan_points(scan: Scan, max_range: float, step: int = 1) -> np.ndarray:
@@ -170,6 +171,8 @@ class LocalMap:
 
     def __init__(self, cfg: MatchConfig) -> None:
         self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
+        self._seen_from: deque[tuple[float, float, float]] = deque(maxlen=cfg.local_map_scans)
+        """Each key scan's position and its laser's reach (x, y, metres)."""
         self._cfg = cfg
         self.reference: PointIndex | None = None
         self._field: LogField | None = None
@@ -177,20 +180,29 @@ class LocalMap:
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._stale = 0  # key scans added to the field since it was made anew
 
-    def add(self, pose: Pose2D, points: np.ndarray) -> None:
-        """A key scan's points (robot frame) seen from ``pose`` (matcher frame)."""
+    def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf) -> None:
+        """A key scan's points (robot frame) seen from ``pose`` (matcher frame) by a laser
+        whose end points reach ``reach`` metres."""
         self._keys.append(transform_points(pose, points))
+        self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
             half = self._cfg.correlative.resolution_m / 2
             walls = transform_points(pose, sampled_walls(points, half))
             self._walls.append(walls[thin(walls, half)])
             self._fresh.append(self._walls[-1])
         pts = np.concatenate(self._keys)
-        if len(pts) < 20:
+        if len(pts) < MIN_POINTS:
             self.reference = None
             return
         self.reference = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)],
                                     neighbours=self._cfg.normal_neighbours)
+
+    def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
+        """Which points (N×2, matcher frame) lie within a key scan's reach, less
+        ``margin``: where the local map could have seen a wall."""
+        keys = np.array(self._seen_from).reshape(-1, 3)
+        d2 = ((points[:, None, :] - keys[None, :, :2]) ** 2).sum(-1)
+        return np.any(d2 <= np.maximum(keys[None, :, 2] - margin, 0.0) ** 2, axis=1)
 
     def field(self) -> LogField:
         """The correlative search's lookup table of the local map. Made anew from the local
@@ -272,7 +284,8 @@ class ScanMatcher:
         key = self._key_pose
         if key is None or moved_far(key, pose, cfg.key_distance_m,
                                     math.radians(cfg.key_angle_deg)):
-            self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m))
+            self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m),
+                          min(cfg.max_range_m, scan.max_range))
             self._key_pose = pose
         return inc, source, cov
 
@@ -288,6 +301,10 @@ class ScanMatcher:
     def _match(self, scan: Scan, pts: np.ndarray, reference: PointIndex,
                guess: Pose2D, wheel: Pose2D) -> Placed:
         """The scan's points placed in the matcher's frame."""
+        if self.cfg.within_reach:
+            seen = self._map.within_reach(transform_points(guess, pts), self.cfg.reach_margin_m)
+            if np.count_nonzero(seen) >= MIN_POINTS:
+                pts = pts[seen]
         if self.cfg.method == "correlative" and scan.has_odometry:
             return self._correlative(pts, reference, guess, wheel, scan.odom)
         sigma = self._prior_sigma(scan, wheel)
@@ -312,7 +329,7 @@ class ScanMatcher:
         :meth:`_retry_guesses`, and the best-scoring wins ("recovered" if it is not the
         first); nothing good: the odometry."""
         cfg = self.cfg
-        if len(pts) < 20:
+        if len(pts) < MIN_POINTS:
             return Placed(guess, "fallback")
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         field = self._map.field()
@@ -368,7 +385,7 @@ class ScanMatcher:
         """Enough pairs, close enough, and a turn from where ICP started within
         MAX_TURN_SIGMAS of the prior (a room's walls also fit turned by 90°)."""
         return (match.share >= self.cfg.min_inliers and match.rms <= self.cfg.max_rms_m
-                and len(pts) >= 20 and abs(math.remainder(match.pose.theta - start.theta,
+                and len(pts) >= MIN_POINTS and abs(math.remainder(match.pose.theta - start.theta,
                                                           math.tau))
                 <= MAX_TURN_SIGMAS * sigma[2])
 
