@@ -157,13 +157,18 @@ def open_prior(folder: Path, config: Config, initial: Pose2D | None = None) -> P
     """An earlier session's output folder as the start of a run (``--prior``): its static
     and dynamic maps, and ``initial``, where the user says the log starts in it (or None)."""
     from dynslam_cli.errors import InputError
+    from dynslam_cli.mapping.changes import standing_at_end
+    from dynslam_formats.changes import read_changes
     from dynslam_formats.mapfile import read_map
 
     if not (folder / "static.yaml").is_file():
         raise InputError(str(folder), "not a dynslam output folder (no static.yaml)")
     s = read_map(folder / "static.yaml")
     d = read_map(folder / "dynamic.yaml").grid if (folder / "dynamic.yaml").is_file() else None
-    prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh, d)
+    events = (_read_table(folder / "changes.csv", read_changes)
+              if (folder / "changes.csv").is_file() else [])
+    prior = PriorMap(str(folder), s.grid, s.free_thresh, s.occupied_thresh, d,
+                     standing_at_end(events))
     return PriorSession(prior, config.map, config.prior, config.match, config.ekf.noise,
                         initial)
 

@@ -58,6 +58,8 @@ class PriorMap:
     free_thresh: float
     occupied_thresh: float
     dynamic: OccupancyMap | None = None
+    objects: tuple[tuple[float, float, float], ...] = ()
+    """Objects its change events say stood at its end (x, y, m²): arrived, not left."""
 
     @functools.cached_property
     def occupied(self) -> np.ndarray:
@@ -139,7 +141,7 @@ class PriorSession:
         rows, cols, occupied = self._cells
         grids.seed("static", rows, cols, self._seed[occupied.astype(np.intp)])
         if changes is not None:
-            changes.note_prior_standing(*self.prior.standing())
+            changes.note_prior_standing(*self.prior.standing(), list(self.prior.objects))
 
     def to_map(self, scan: Scan) -> Pose2D:
         """The scan's odometry in the prior's frame. The first scan of the run is the log's

@@ -212,27 +212,45 @@ def test_an_object_standing_since_the_prior_session_is_an_event(tmp_path: Path, 
     assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.3
 
 
-def test_an_object_the_prior_held_dynamic_is_no_change(tmp_path: Path, cli) -> None:
-    """A crate that came during yesterday's run stood in yesterday's D (S Free under it):
-    standing there today is no change, where a crate on yesterday's empty floor is."""
+def _crate_came_yesterday(folder: Path) -> None:
+    """Make ``folder`` (yesterday's output) one whose run saw a crate arrive at (-0.5, 0.3)
+    and still stand there at its end: its outline in D (S Free under it), an ``appeared``
+    event with no ``vacated`` after it."""
     from dynslam_cli.mapping.grid import OccupancyMap
     from dynslam_formats.mapfile import write_map
 
-    log1, _ = session(tmp_path / "a", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0))
-    cli("process", log1, "-o", tmp_path / "first", "-q")
-    d = read_map(tmp_path / "first" / "dynamic.yaml")
+    d = read_map(folder / "dynamic.yaml")
     g = d.grid
     x = g.origin_x + (np.arange(g.prob.shape[1]) + 0.5) * g.resolution
     y = g.origin_y + (np.arange(g.prob.shape[0]) + 0.5) * g.resolution
     crate = (np.abs(x[None, :] + 0.5) <= 0.35) & (np.abs(y[:, None] - 0.3) <= 0.35)
     edge = crate & ~((np.abs(x[None, :] + 0.5) <= 0.2) & (np.abs(y[:, None] - 0.3) <= 0.2))
-    prob = np.where(edge, 1.0, g.prob)  # its outline, as a run that saw it come draws it
-    write_map(tmp_path / "first", "dynamic",
-              OccupancyMap(prob, g.resolution, g.origin_x, g.origin_y), d.free_thresh,
-              d.occupied_thresh)
+    write_map(folder, "dynamic", OccupancyMap(np.where(edge, 1.0, g.prob), g.resolution,
+                                              g.origin_x, g.origin_y),
+              d.free_thresh, d.occupied_thresh)
+    with open(folder / "changes.csv", "a") as f:
+        f.write("99,appeared,20.000,40.000,-0.500,0.300,0.360,150,\n")
+
+
+def test_an_object_the_prior_saw_arrive_is_no_change_while_it_stands(tmp_path: Path,
+                                                                     cli) -> None:
+    """A crate that came during yesterday's run stood in yesterday's D: standing there
+    today is no change (a crate on yesterday's empty floor is one); gone today, it is
+    ``removed_since_prior``."""
+    log1, _ = session(tmp_path / "a", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0))
+    cli("process", log1, "-o", tmp_path / "first", "-q")
+    _crate_came_yesterday(tmp_path / "first")
     log2, _ = session(tmp_path / "b", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
                       odometry_frame=ELSEWHERE, boxes=(Box("crate", 0.3, 0.3, [(-0.5, 0.3)]),))
     result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
     assert result.exit_code == 0, result.output
     with open(tmp_path / "o" / "changes.csv") as f:
         assert [e.kind for e in read_changes(f) if e.kind != "moving"] == []
+    log3, _ = session(tmp_path / "c", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
+                      odometry_frame=ELSEWHERE)
+    result = cli("process", log3, "--prior", tmp_path / "first", "-o", tmp_path / "g", "-q")
+    assert result.exit_code == 0, result.output
+    with open(tmp_path / "g" / "changes.csv") as f:
+        events = [e for e in read_changes(f) if e.kind != "moving"]
+    assert [e.kind for e in events] == ["removed_since_prior"]
+    assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.1

@@ -96,10 +96,15 @@ class ChangeRecorder:
         self._prior_standing = np.zeros(0, np.int64)
         """The cells the earlier session's D held Occupied at its end (objects standing
         there then), as sorted :func:`_cell_keys`."""
+        self.prior_objects: list[tuple[float, float, float]] = []
+        """Objects the earlier session's changes reported standing at its end (x, y, m²)."""
 
-    def note_prior_standing(self, rows: np.ndarray, cols: np.ndarray) -> None:
-        """What stood in the earlier session's D at its end (world rows and columns)."""
+    def note_prior_standing(self, rows: np.ndarray, cols: np.ndarray,
+                            objects: list[tuple[float, float, float]]) -> None:
+        """What stood in the earlier session's D at its end (world rows and columns), and
+        the objects its changes reported standing then (x, y, m²)."""
         self._prior_standing = np.unique(_cell_keys(rows, cols))
+        self.prior_objects = list(objects)
 
     def stood_in_prior(self, x0: float, y0: float, x1: float, y1: float) -> int:
         """How many cells of a box (map frame, m) held an object at the earlier session's
@@ -152,11 +157,18 @@ class ChangeRecorder:
         scan ``scan`` (on an earlier session's map only; else 1)."""
         if not self.grids.seeded:
             return 1.0
+        first = self.first_free(x0, y0, x1, y1)
+        return float(np.count_nonzero((first > 0) & (first <= scan))) / max(first.size, 1)
+
+    def first_free(self, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+        """For each cell of a box (map frame, m), the scan that first saw it free in this
+        run, plus one (0: not seen free; on an earlier session's map only)."""
         rows, cols = self._box_cells(x0, y0, x1, y1)
         flat = self.grids.flat_cells(rows, cols)
-        flat = flat[(flat >= 0) & (flat < len(self._first_free))]
-        first = self._first_free[flat]
-        return float(np.count_nonzero((first > 0) & (first <= scan))) / max(rows.size, 1)
+        known = (flat >= 0) & (flat < len(self._first_free))
+        first = np.zeros(len(flat), np.int64)
+        first[known] = self._first_free[flat[known]]
+        return first
 
     def compact(self) -> None:
         """Let go of what can no longer make an event, so memory follows the cells, not the
@@ -225,7 +237,8 @@ def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, fl
     if not config.enabled:
         return []
     moving, trail, still = _tracks(recorder)
-    found = [*moving, *_standing_objects(recorder, still), *_vacated_static(recorder, trail)]
+    found = [*moving, *_standing_objects(recorder, still), *_vacated_static(recorder, trail),
+             *_gone_since_prior(recorder)]
     found = [e for e in found if e.kind == "moving" or e.size_m2 <= config.max_object_m2]
     found.sort(key=lambda e: (e.first_s, e.x, e.y, e.kind))
     places = np.array([(x, y) for _, x, y in landmarks], dtype=np.float64).reshape(-1, 2)
@@ -500,6 +513,35 @@ def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
     hit = keys[np.maximum(at, 0)]
     found &= hit // span == cells
     return np.where(found, hit % span, -1)
+
+
+def standing_at_end(events: list[ChangeEvent]) -> tuple[tuple[float, float, float], ...]:
+    """The objects a run's change events say stood at its end (x, y, m²): each that arrived
+    (``appeared``, ``added_since_prior``) and was not seen to leave after (no ``vacated``
+    within its half-width)."""
+    came = [e for e in events if e.kind in ("appeared", "added_since_prior")]
+    left = [e for e in events if e.kind == "vacated"]
+    return tuple((e.x, e.y, e.size_m2) for e in came
+                 if not any(v.first_s >= e.first_s and math.hypot(v.x - e.x, v.y - e.y)
+                            <= max(0.3, math.sqrt(e.size_m2) / 2) for v in left))
+
+
+def _gone_since_prior(recorder: ChangeRecorder) -> list[ChangeEvent]:
+    """The objects an earlier session saw arrive and still standing at its end (in its D,
+    not its S), whose place this run saw free over at least half its cells:
+    ``removed_since_prior``, seen so when half of them had been (a place taken as a square
+    of the object's area)."""
+    stamps = np.asarray(recorder.stamps)
+    out = []
+    for x, y, area in recorder.prior_objects:
+        half = math.sqrt(area) / 2
+        first = recorder.first_free(x - half, y - half, x + half, y + half)
+        seen = np.sort(first[first > 0]) - 1
+        if 2 * len(seen) < len(first):
+            continue
+        out.append(ChangeEvent(0, "removed_since_prior", float(stamps[seen[len(first) // 2]]),
+                               float(stamps[seen[-1]]), x, y, area, len(np.unique(seen))))
+    return out
 
 
 def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
