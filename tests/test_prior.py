@@ -204,12 +204,17 @@ def test_an_object_standing_since_the_prior_session_is_an_event(tmp_path: Path, 
     crate = Box("crate", 0.3, 0.3, [(-0.5, 0.3)])  # put there overnight
     log2, _ = session(tmp_path / "b", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
                       odometry_frame=ELSEWHERE, boxes=(crate,))
-    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
-    assert result.exit_code == 0, result.output
-    with open(tmp_path / "o" / "changes.csv") as f:
-        events = [e for e in read_changes(f) if e.kind != "moving"]
+    events = _objects_today(cli, log2, tmp_path / "first", tmp_path / "o")
     assert [e.kind for e in events] == ["added_since_prior"]
     assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.3
+
+
+def _objects_today(cli, log: Path, prior: Path, out: Path) -> list:
+    """The change events other than movers of ``log`` run on the ``prior`` folder."""
+    result = cli("process", log, "--prior", prior, "-o", out, "-q")
+    assert result.exit_code == 0, result.output
+    with open(out / "changes.csv") as f:
+        return [e for e in read_changes(f) if e.kind != "moving"]
 
 
 def _crate_came_yesterday(folder: Path) -> None:
@@ -242,15 +247,9 @@ def test_an_object_the_prior_saw_arrive_is_no_change_while_it_stands(tmp_path: P
     _crate_came_yesterday(tmp_path / "first")
     log2, _ = session(tmp_path / "b", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
                       odometry_frame=ELSEWHERE, boxes=(Box("crate", 0.3, 0.3, [(-0.5, 0.3)]),))
-    result = cli("process", log2, "--prior", tmp_path / "first", "-o", tmp_path / "o", "-q")
-    assert result.exit_code == 0, result.output
-    with open(tmp_path / "o" / "changes.csv") as f:
-        assert [e.kind for e in read_changes(f) if e.kind != "moving"] == []
+    assert _objects_today(cli, log2, tmp_path / "first", tmp_path / "o") == []
     log3, _ = session(tmp_path / "c", ROOM, ROUTE, Pose2D(-2.5, -1.8, 0.0),
                       odometry_frame=ELSEWHERE)
-    result = cli("process", log3, "--prior", tmp_path / "first", "-o", tmp_path / "g", "-q")
-    assert result.exit_code == 0, result.output
-    with open(tmp_path / "g" / "changes.csv") as f:
-        events = [e for e in read_changes(f) if e.kind != "moving"]
+    events = _objects_today(cli, log3, tmp_path / "first", tmp_path / "g")
     assert [e.kind for e in events] == ["removed_since_prior"]
     assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.1
