@@ -85,6 +85,25 @@ class PriorMap:
         return _world_cells(self.dynamic, *np.nonzero(self.dynamic.prob > self.occupied_thresh))
 
 
+def steady(clouds: list[np.ndarray], stamps: list[float], cell: float, seconds: float
+           ) -> np.ndarray:
+    """The end points of scans (each N×2, one frame, taken at ``stamps``) in squares of side
+    ``cell`` where the scans saw something over at least ``seconds``: a walker's end points
+    move on, a wall's stay. All of them while the scans span less than that."""
+    cloud = np.vstack(clouds)
+    if not len(clouds) or stamps[-1] - stamps[0] < seconds:
+        return cloud
+    t = np.repeat(np.asarray(stamps), [len(c) for c in clouds])
+    cells = np.floor(cloud / cell).astype(np.int64)
+    _, which = np.unique(cells, axis=0, return_inverse=True)
+    which = which.reshape(-1)
+    first = np.full(which.max() + 1, np.inf)
+    last = np.full(which.max() + 1, -np.inf)
+    np.minimum.at(first, which, t)
+    np.maximum.at(last, which, t)
+    return cloud[(last - first)[which] >= seconds]
+
+
 def _world_cells(grid: OccupancyMap, rows: np.ndarray, cols: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray]:
     """A grid's (row, col) as world (row, col): counted from the frame's origin."""
@@ -164,6 +183,7 @@ class PriorSession:
         measure = ScanMeasurer(self.match, self._motion_noise, None)
         here: Pose2D | None = None  # each scan's pose in the first's frame
         clouds: list[np.ndarray] = []
+        stamps: list[float] = []
         found: Placement | None = None  # the last search's, from where it was ...
         searched, evidence, tried_m = "", 0.0, 0.0  # ... and driven how far
         travel, until, decided = 0.0, math.inf, 0.0
@@ -173,11 +193,12 @@ class PriorSession:
                 travel += math.hypot(step.x, step.y)
             here = Pose2D() if here is None else compose(here, step)
             clouds.append(transform_points(here, scan_points(scan, self.match.max_range_m)))
+            stamps.append(scan.stamp)
             if travel >= until:
                 break
             if until == math.inf and (found is None or travel >= 2.0 * tried_m
                                       or travel > self.cfg.max_travel_m):
-                cloud = np.vstack(clouds)
+                cloud = steady(clouds, stamps, SEARCH_CELLS * res, self.cfg.steady_s)
                 cloud = cloud[thin(cloud, SEARCH_CELLS * res)]
                 found, searched = self._search(field, cloud)
                 evidence = self._evidence(field, cloud, found)

@@ -253,3 +253,18 @@ def test_an_object_the_prior_saw_arrive_is_no_change_while_it_stands(tmp_path: P
     events = _objects_today(cli, log3, tmp_path / "first", tmp_path / "g")
     assert [e.kind for e in events] == ["removed_since_prior"]
     assert math.hypot(events[0].x + 0.5, events[0].y - 0.3) < 0.1
+
+
+def test_a_walkers_end_points_do_not_place_a_log() -> None:
+    """Scans put together over 3 s: a wall seen in each stays in the cloud that places the
+    log, a walker who crossed in front, each scan somewhere else, leaves it; before the
+    scans span a second, every end point counts."""
+    from dynslam_cli.prior import steady
+
+    wall = np.column_stack((np.linspace(0, 4, 40), np.full(40, 2.0)))
+    clouds = [np.vstack((wall, [[0.1 * k, 1.0]])) for k in range(30)]  # the walker at 0.1k
+    stamps = [0.1 * k for k in range(30)]
+    kept = steady(clouds, stamps, cell=0.15, seconds=1.0)
+    assert len(kept) == 30 * 40 and np.allclose(kept[:, 1], 2.0)
+    early = steady(clouds[:5], stamps[:5], cell=0.15, seconds=1.0)
+    assert len(early) == 5 * 41
