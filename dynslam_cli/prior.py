@@ -91,7 +91,7 @@ def steady(clouds: list[np.ndarray], stamps: list[float], cell: float, seconds: 
     ``cell`` where the scans saw something over at least ``seconds``: a walker's end points
     move on, a wall's stay. All of them while the scans span less than that."""
     cloud = np.vstack(clouds)
-    if not len(clouds) or stamps[-1] - stamps[0] < seconds:
+    if seconds <= 0 or stamps[-1] - stamps[0] < seconds:
         return cloud
     t = np.repeat(np.asarray(stamps), [len(c) for c in clouds])
     cells = np.floor(cloud / cell).astype(np.int64)
