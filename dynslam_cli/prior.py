@@ -254,7 +254,11 @@ class PriorSession:
     def _place(self, field: MapField, points: np.ndarray,
                near: tuple[Pose2D, float, float] | None) -> Placement:
         c = self.cfg
-        return place(field, points, c.min_score, c.rival_m, c.rival_deg, c.rival_share, near)
+        likelier = None
+        if c.rival_search == "likelihood":  # a rival matters within this of the best
+            likelier = (OUTLIER_SHARE, c.rival_evidence / min(len(points), EFFECTIVE_POINTS))
+        return place(field, points, c.min_score, c.rival_m, c.rival_deg, c.rival_share, near,
+                     likelier)
 
     def _problem(self, found: Placement, evidence: float) -> str | None:
         """What is wrong with a placement whose best place is e^``evidence`` times as likely

@@ -65,6 +65,31 @@ def test_a_symmetric_room_is_reported_as_ambiguous() -> None:
     assert found.runner_up > 0.95 * found.score  # another quarter turn fits as well
 
 
+def test_the_likeliest_rival_is_found_only_where_it_could_be_mistaken() -> None:
+    """The rival searched on the log-likelihood, down to a margin under the best's: in the
+    symmetric room the quarter turn is found (as likely as the best), in the room with one
+    place nothing comes within a margin, and with a margin wide enough one no less likely
+    than the best-scoring pose elsewhere."""
+    grid, origin = occupancy(SQUARE)
+    field = MapField(grid, RES, origin)
+    points = scan_from(SQUARE, Pose2D(1.5, 4.0, 0.3))
+    found = place(field, points, min_score=0.5, likelier=(0.1, 0.05))
+    assert found.rival is not None and found.runner_up > 0.95 * found.score
+    grid, origin = occupancy(ROOM)
+    field = MapField(grid, RES, origin)
+    points = scan_from(ROOM, Pose2D(0.2, -0.4, 1.3))
+    assert place(field, points, min_score=0.5, likelier=(0.1, 0.05)).rival is None
+    by_score = place(field, points, min_score=0.5, rival_share=0.01)
+    wide = place(field, points, min_score=0.5, likelier=(0.1, 10.0))
+    assert wide.rival is not None and by_score.rival is not None
+
+    def log_likelihood(pose: Pose2D) -> float:
+        return float(np.mean(np.log1p(9.0 * field.values(points, pose))))
+
+    # the likeliest elsewhere: no less likely than the best-scoring pose elsewhere
+    assert log_likelihood(wide.rival) >= log_likelihood(by_score.rival) - 1e-6
+
+
 def test_the_bound_of_each_level_is_above_every_pose_it_covers() -> None:
     grid, origin = occupancy(ROOM)
     field = MapField(grid, RES, origin)

@@ -66,6 +66,17 @@ class MapField:
         self.levels = [fine.astype(np.float32)]  # (single precision: half the memory)
         for k in range(1, self.top + 1):
             self.levels.append(_pool(self.levels[-1], 1 << (k - 1)))
+        self._log_levels: tuple[float, list[np.ndarray]] | None = None
+
+    def log_levels(self, outlier: float) -> list[np.ndarray]:
+        """The pyramid of an end point's log-likelihood, log((1 − outlier)·v + outlier) −
+        log(outlier) of each value v: near a wall with the field's spread or, with
+        probability ``outlier``, anywhere (0 off the walls). The log is increasing, so the
+        max-pooled levels bound it as they bound the field (made once per share)."""
+        if self._log_levels is None or self._log_levels[0] != outlier:
+            self._log_levels = (outlier, [
+                np.log1p(level * np.float32((1.0 - outlier) / outlier)) for level in self.levels])
+        return self._log_levels[1]
 
     def values(self, points: np.ndarray, pose: Pose2D) -> np.ndarray:
         """The field's value at each end point (N×2, robot frame) of a scan at ``pose``
@@ -124,8 +135,11 @@ class Lattice:
     pose's cell, and the scoring of candidates (heading index, column, row of the robot's
     cell in the padded field) at a level of the pyramid."""
 
-    def __init__(self, field: MapField, points: np.ndarray) -> None:
+    def __init__(self, field: MapField, points: np.ndarray,
+                 levels: list[np.ndarray] | None = None) -> None:
+        """``levels``: the pyramid scored (default: the field's own)."""
         self.field = field
+        self.levels = field.levels if levels is None else levels
         step = heading_step(points, field.resolution)
         n = max(1, math.ceil(2.0 * math.pi / step))
         self.thetas = np.arange(n) * (2.0 * math.pi / n)
@@ -141,7 +155,7 @@ class Lattice:
         """Mean value at the end points of level ``level`` of the pyramid for each candidate
         (arrays of heading indices and robot cells): the score itself at level 0, a bound
         on every pose of the candidate's 2^level square above it."""
-        return _loops.lattice_scores(self.field.levels[level], self.dr, self.dc,
+        return _loops.lattice_scores(self.levels[level], self.dr, self.dc,
                                      th.astype(np.intp), col.astype(np.intp),
                                      row.astype(np.intp))
 
@@ -181,24 +195,41 @@ class Region:
 
 def place(field: MapField, points: np.ndarray, min_score: float = 0.0,
           rival_m: float = 1.0, rival_deg: float = 30.0, rival_share: float = 0.75,
-          near: tuple[Pose2D, float, float] | None = None) -> Placement:
+          near: tuple[Pose2D, float, float] | None = None,
+          likelier: tuple[float, float] | None = None) -> Placement:
     """The best pose (map frame) of a scan whose end points are ``points`` (N×2, robot
     frame), over every cell of the map and every heading (or, with ``near`` = (pose,
     metres, degrees), within that of the pose), and the best score of a pose at least
     ``rival_m`` away or turned at least ``rival_deg`` from it (its rival, searched over the
     same region). Poses scoring below ``min_score`` are not looked for (the score 0 and no
     pose if none reaches it), nor rivals below ``rival_share`` of the best (runner_up 0):
-    the lower the floors, the more of the map must be searched finely."""
-    lattice = Lattice(field, np.asarray(points, dtype=float).reshape(-1, 2))
+    the lower the floors, the more of the map must be searched finely.
+
+    ``likelier`` = (outlier share, margin): the rival is instead the likeliest pose
+    elsewhere (:meth:`MapField.log_levels`), looked for only among those whose mean
+    log-likelihood comes within ``margin`` of the best's (rival_share unused); its score is
+    still the field's mean."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    lattice = Lattice(field, points)
     regions = [] if near is None else [Region(lattice, *near, inside=True)]
     best = _branch_and_bound(lattice, regions, min_score)
     if best is None:
         return Placement(None, 0.0, 0.0)
     score, pose = best
+    if likelier is not None:
+        outlier, margin = likelier
+        lattice = Lattice(field, points, field.log_levels(outlier))
+        floor = float(np.mean(np.log1p(field.values(points, pose) * (1 - outlier) / outlier)))
+        floor -= margin
+    else:
+        floor = rival_share * score
     rival = Region(lattice, pose, rival_m, rival_deg, inside=False)
-    second = _branch_and_bound(lattice, [*regions, rival], rival_share * score)
+    second = _branch_and_bound(lattice, [*regions, rival], floor)
     if second is None:
         return Placement(pose, score, 0.0)
+    if likelier is not None:
+        return Placement(pose, score, float(np.mean(field.values(points, second[1]))),
+                         second[1])
     return Placement(pose, score, *second)
 
 
