@@ -293,17 +293,9 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
     _guarded(work)
 
 
-def _pose(text: str | None) -> tuple[float, float, float] | None:
+def _pose(text: str | None) -> tuple[float, ...] | None:
     """X,Y,DEGREES as three finite numbers."""
-    if text is None:
-        return None
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise click.BadParameter(f"{text!r} is not X,Y,DEGREES (three numbers)")
-    return values  # type: ignore[return-value]
+    return None if text is None else _numbers(text, 3, "X,Y,DEGREES (three numbers)")
 
 
 def _process(log: str, target: Path, force: bool, format_name: str | None, options: Any,
@@ -699,16 +691,21 @@ def _simulated(folder: Path) -> bool:
     return is_simulation(folder) or is_simulation(folder / "session1")
 
 
-def _point(text: str) -> tuple[float, float]:
+def _point(text: str) -> tuple[float, ...]:
     """"X,Y" (metres) as two finite floats; else click's usage error."""
-    parts = text.split(",")
+    return _numbers(text, 2, "X,Y (two numbers, metres)")
+
+
+def _numbers(text: str, count: int, form: str) -> tuple[float, ...]:
+    """``count`` comma-separated finite numbers; else click's usage error saying they must
+    be ``form``."""
     try:
-        x, y = (float(p) for p in parts) if len(parts) == 2 else (math.nan, math.nan)
+        values = tuple(float(v) for v in text.split(","))
     except ValueError:
-        x = y = math.nan
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise click.BadParameter(f"{text!r} is not X,Y (two numbers, metres)")
-    return x, y
+        values = ()
+    if len(values) != count or not all(map(math.isfinite, values)):
+        raise click.BadParameter(f"{text!r} is not {form}")
+    return values
 
 
 def _table(report: dict[str, Any], indent: str = "") -> str:

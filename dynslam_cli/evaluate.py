@@ -57,12 +57,28 @@ def ate_rmse(est: np.ndarray, ref: np.ndarray, max_dt: float = 1e-3) -> float:
     """Absolute trajectory error (RMSE of positions, m) after SE(2) alignment; rows are
     (stamp, x, y, theta). Raises :class:`ScoreError` when fewer than two poses, or fewer than
     ``MIN_MATCHED`` of ``est``'s, have a reference pose at their stamp."""
+    i, j = _enough_matched(est, ref, max_dt)
+    return aligned_rmse(est[i, 1:3], ref[j, 1:3])
+
+
+def _enough_matched(est: np.ndarray, ref: np.ndarray, max_dt: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`match_stamps`, or :class:`ScoreError` where it pairs too few (see
+    :func:`ate_rmse`)."""
     i, j = match_stamps(est, ref, max_dt) if len(est) and len(ref) else (np.zeros(0, int),) * 2
     if len(i) < max(2, MIN_MATCHED * len(est)):
         raise ScoreError(f"only {len(i)} of {len(est)} poses have a reference pose within "
                          f"{max_dt:g} s (poses {_span(est)}, reference {_span(ref)}): not the "
                          "same run, or its stamps are shifted")
-    return aligned_rmse(est[i, 1:3], ref[j, 1:3])
+    return i, j
+
+
+def _on_truth_clock(trajectory: np.ndarray, truth: dict[str, Any]) -> np.ndarray:
+    """A copy of the trajectory (rows stamp, x, y, theta) with the log's stamps put on the
+    truth's clock (``stamp_offset_s``: bags are stamped from a plausible ROS epoch)."""
+    out = np.array(trajectory, dtype=float)
+    out[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    return out
 
 
 def aligned_rmse(est: np.ndarray, ref: np.ndarray) -> float:
@@ -186,8 +202,7 @@ def score_run(static: OccupancyMap, dynamic: OccupancyMap, trajectory: np.ndarra
     objects = truth["objects"]
     ref = np.asarray(truth["poses"], dtype=float)
     odom = np.asarray(truth["odometry"], dtype=float)
-    trajectory = np.array(trajectory, dtype=float)  # the log's stamps → the truth's clock
-    trajectory[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    trajectory = _on_truth_clock(trajectory, truth)
     res = static.resolution
     tol = max(tolerance_m, res)
     occ_s = static.prob > thresholds.occupied
@@ -477,13 +492,11 @@ def score_sessions(events: list[ChangeEvent], trajectory: np.ndarray, truth: dic
     """A later session run on the earlier one's map (``--prior``), whose frame is the
     truth's: the trajectory's error there (no alignment) and the between-session events
     (``*_since_prior``) matched to the fixtures' changes within ``tolerance_m``."""
-    est = np.array(trajectory, dtype=float)
-    est[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    est = _on_truth_clock(trajectory, truth)
     ref = np.asarray(truth["poses"], dtype=float)
-    i, j = match_stamps(est, ref, 1e-3)
+    i, j = _enough_matched(est, ref, 1e-3)
     error = np.hypot(*(est[i, 1:3] - ref[j, 1:3]).T)
-    out: dict[str, Any] = {"ate_in_prior_frame_m": float(np.sqrt(np.mean(error ** 2)))
-                           if len(i) else None}
+    out: dict[str, Any] = {"ate_in_prior_frame_m": float(np.sqrt(np.mean(error ** 2)))}
     true = truth_prior_changes(truth)
     for kind in ("removed_since_prior", "added_since_prior"):
         out[kind], _ = _tally_events([e for e in events if e.kind == kind],
@@ -496,8 +509,7 @@ def _aligned_events(events: list[ChangeEvent], trajectory: np.ndarray, truth: di
                     ) -> list[ChangeEvent]:
     """The events with their places in the truth's frame: the rigid alignment of the
     trajectory's positions onto the true ones at the same stamps (as for the ATE)."""
-    est = np.array(trajectory, dtype=float)
-    est[:, 0] -= float(truth.get("stamp_offset_s", 0.0))
+    est = _on_truth_clock(trajectory, truth)
     ref = np.asarray(truth["poses"], dtype=float)
     i, j = match_stamps(est, ref, 1e-3)
     if len(i) < 2 or not events:

@@ -29,6 +29,7 @@ from dynslam_cli.localization.globalsearch import (
     MapField,
     Placement,
     heading_step,
+    log_likelihood,
     place,
 )
 from dynslam_cli.localization.loops import PriorWalls
@@ -256,7 +257,7 @@ class PriorSession:
         c = self.cfg
         likelier = None
         if c.rival_search == "likelihood":  # a rival matters within this of the best
-            likelier = (OUTLIER_SHARE, c.rival_evidence / min(len(points), EFFECTIVE_POINTS))
+            likelier = (OUTLIER_SHARE, c.rival_evidence / _counted(len(points)))
         return place(field, points, c.min_score, c.rival_m, c.rival_deg, c.rival_share, near,
                      likelier)
 
@@ -281,7 +282,11 @@ class PriorSession:
         the end points at the two (see PriorConfig.rival_evidence); ∞ without a rival."""
         if found.pose is None or found.rival is None:
             return math.inf
-        share = 1.0 - OUTLIER_SHARE
-        best = np.log(share * field.values(points, found.pose) + OUTLIER_SHARE)
-        rival = np.log(share * field.values(points, found.rival) + OUTLIER_SHARE)
-        return float(np.sum(best - rival)) * min(1.0, EFFECTIVE_POINTS / max(len(points), 1))
+        best = log_likelihood(field.values(points, found.pose), OUTLIER_SHARE)
+        rival = log_likelihood(field.values(points, found.rival), OUTLIER_SHARE)
+        return float(np.mean(best - rival)) * _counted(len(points))
+
+
+def _counted(points: int) -> float:
+    """How many independent end points a cloud of ``points`` counts as."""
+    return min(points, EFFECTIVE_POINTS)

@@ -74,8 +74,8 @@ class MapField:
         probability ``outlier``, anywhere (0 off the walls). The log is increasing, so the
         max-pooled levels bound it as they bound the field (made once per share)."""
         if self._log_levels is None or self._log_levels[0] != outlier:
-            self._log_levels = (outlier, [
-                np.log1p(level * np.float32((1.0 - outlier) / outlier)) for level in self.levels])
+            self._log_levels = (outlier, [log_likelihood(level, outlier)
+                                          for level in self.levels])
         return self._log_levels[1]
 
     def values(self, points: np.ndarray, pose: Pose2D) -> np.ndarray:
@@ -89,6 +89,13 @@ class MapField:
         out = np.zeros(len(points))
         out[on] = fine[row[on], col[on]]
         return out
+
+
+def log_likelihood(values: np.ndarray, outlier: float) -> np.ndarray:
+    """An end point's log-likelihood where the field is ``values``: near a wall with the
+    field's spread or, with probability ``outlier``, anywhere; less log(``outlier``), so 0
+    far from every wall (in the values' precision)."""
+    return np.log1p(values * values.dtype.type((1.0 - outlier) / outlier))
 
 
 def gaussian(d: np.ndarray) -> np.ndarray:
@@ -219,8 +226,7 @@ def place(field: MapField, points: np.ndarray, min_score: float = 0.0,
     if likelier is not None:
         outlier, margin = likelier
         lattice = Lattice(field, points, field.log_levels(outlier))
-        floor = float(np.mean(np.log1p(field.values(points, pose) * (1 - outlier) / outlier)))
-        floor -= margin
+        floor = float(np.mean(log_likelihood(field.values(points, pose), outlier))) - margin
     else:
         floor = rival_share * score
     rival = Region(lattice, pose, rival_m, rival_deg, inside=False)

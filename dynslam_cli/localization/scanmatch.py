@@ -277,7 +277,8 @@ class ScanMatcher:
             cov = increment_covariance(cov, self._pose)
         if source == "matched" and cfg.method == "correlative":
             self._odometry.learn(inc, wheel, cfg.correlative.odometry)
-            if measured is not None:  # (a match the odometry was fused into)
+            if measured is not None and self._calibration.enabled:  # (a match the odometry
+                # was fused into)
                 self._calibration.learn(relative(self._pose, measured), raw)
         self._pose = pose
         self._last_increment = inc
