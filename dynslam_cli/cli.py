@@ -85,6 +85,9 @@ reader_options = _options(  # how to read a log: process, batch (every log), inf
     click.option("--flaser-fov", type=float, metavar="DEG",
                  help="Field of view of old FLASER records (degrees) instead of CARMEN's "
                       "rule."),
+    click.option("--beam-step", type=float, metavar="DEG",
+                 help="The angle between two beams (degrees) where the log states it wrong "
+                      "(a converter's fov/(n-1) for a laser's fov/n); the first beam stays."),
 )
 
 run_options = _options(  # what to compute and which part of the log: process, batch
@@ -124,6 +127,7 @@ run_options = _options(  # what to compute and which part of the log: process, b
 # The configuration keys the command-line options set: a value the configuration refuses is
 # the option's (a usage error, exit 2), not the configuration file's.
 OPTION_KEYS = {"map.resolution_m": "--resolution", "laser.fov_deg": "--flaser-fov",
+               "laser.beam_step_deg": "--beam-step",
                "record.period_s": "--record-period", "record.file": "--record"}
 
 
@@ -144,8 +148,8 @@ def _load(config_file: Path | None, overrides: dict[str, dict[str, Any]]) -> Any
         raise
 
 
-def _overrides(resolution: float | None, flaser_fov: float | None, no_dynamic: bool,
-               localization: str | None, record: str | None = None,
+def _overrides(resolution: float | None, flaser_fov: float | None, beam_step: float | None,
+               no_dynamic: bool, localization: str | None, record: str | None = None,
                record_period: float | None = None) -> dict[str, dict[str, Any]]:
     """Configuration overrides from the command-line options."""
     overrides: dict[str, dict[str, Any]] = {}
@@ -155,8 +159,10 @@ def _overrides(resolution: float | None, flaser_fov: float | None, no_dynamic: b
         overrides["record"] = recording
     if resolution is not None:
         overrides["map"] = {"resolution_m": resolution}
-    if flaser_fov is not None:
-        overrides["laser"] = {"fov_deg": flaser_fov}
+    laser = {k: v for k, v in (("fov_deg", flaser_fov), ("beam_step_deg", beam_step))
+             if v is not None}
+    if laser:
+        overrides["laser"] = laser
     if no_dynamic:
         overrides["dynamic"] = {"enabled": False}
     if localization is not None:
@@ -215,7 +221,7 @@ def main() -> None:
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar or summary line.")
 def process(log: str, output: Path | None, force: bool, format_name: str | None, laser: str,
             topic: str | None, odom_topic: str | None, flaser_fov: float | None,
-            resolution: float | None, config_file: Path | None,
+            beam_step: float | None, resolution: float | None, config_file: Path | None,
             localization: str | None, no_dynamic: bool, snapshots: float | None,
             record: str | None, record_period: float | None, start_s: float | None,
             end_s: float | None, max_scans: int | None, no_read_ahead: bool,
@@ -261,7 +267,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
                                  param_hint="'--initial-pose'")
 
     target = output if output is not None else default_output(log)
-    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
+    overrides = _overrides(resolution, flaser_fov, beam_step, no_dynamic, localization, record,
                            record_period)
 
     def work() -> None:
@@ -271,7 +277,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         config = _load(config_file, overrides)
         check_target(target, force, log)
         options = ReaderOptions(**_reader(laser, topic, odom_topic, start_s, end_s, max_scans),
-                                fov_deg=config.laser.fov_deg)
+                                **config.laser.geometry())
         session = None
         if prior is not None:
             from dynslam_cli.job import open_prior
@@ -371,8 +377,8 @@ def _report_warnings(name: str, stats: Any) -> None:
 def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int,
           scheduler: str | None, force: bool, format_name: str | None, laser: str,
           topic: str | None, odom_topic: str | None, flaser_fov: float | None,
-          resolution: float | None, config_file: Path | None, localization: str | None,
-          no_dynamic: bool, snapshots: float | None, record: str | None,
+          beam_step: float | None, resolution: float | None, config_file: Path | None,
+          localization: str | None, no_dynamic: bool, snapshots: float | None, record: str | None,
           record_period: float | None, start_s: float | None,
           end_s: float | None, max_scans: int | None, quiet: bool) -> None:
     """Process many logs: LOGS are files, folders (searched for logs) or globs.
@@ -397,7 +403,7 @@ def batch(logs: tuple[str, ...], outroot: Path, manifest: Path | None, jobs: int
     if record is not None and Path(record).name != record:
         raise click.BadParameter("in batch, a file name: each log's output folder gets its "
                                  "own recording", param_hint="'--record'")
-    overrides = _overrides(resolution, flaser_fov, no_dynamic, localization, record,
+    overrides = _overrides(resolution, flaser_fov, beam_step, no_dynamic, localization, record,
                            record_period)
     reader = _reader(laser, topic, odom_topic, start_s, end_s, max_scans)
 
@@ -485,7 +491,8 @@ def _batch_report(results: list[dict[str, Any]], quiet: bool) -> None:
 @reader_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
 def info(log: str, format_name: str | None, laser: str, topic: str | None,
-         odom_topic: str | None, flaser_fov: float | None, as_json: bool) -> None:
+         odom_topic: str | None, flaser_fov: float | None, beam_step: float | None,
+         as_json: bool) -> None:
     """Describe what LOG holds before processing it.
 
     Format, record types or topics with message counts, scans, beams, field of view, max
@@ -504,7 +511,8 @@ def info(log: str, format_name: str | None, laser: str, topic: str | None,
         from dynslam_formats import ReaderOptions, describe_log
 
         d = describe_log(log, ReaderOptions(laser=laser, topic=topic, odom_topic=odom_topic,
-                                            fov_deg=flaser_fov), format_name)
+                                            fov_deg=flaser_fov, beam_step_deg=beam_step),
+                         format_name)
         click.echo(json.dumps(d, indent=2, sort_keys=True) if as_json else _table(d))
 
     _guarded(work)

@@ -25,6 +25,8 @@ class ReaderOptions:
     """ROS: the nav_msgs/Odometry topic (needed when a bag has several)."""
     fov_deg: float | None = None
     """Field of view for records that carry no beam angles (old Carmen FLASER)."""
+    beam_step_deg: float | None = None
+    """The angle between two beams (degrees) instead of the log's; the first beam stays."""
     start_s: float | None = None
     """Part of a log: leave out scans earlier than this, in seconds after the first scan."""
     end_s: float | None = None

@@ -212,9 +212,26 @@ class LogWindow(ReaderFilter):
                              f"{'at least ' if t > self.end else ''}{t:.1f} s)")
 
 
+class BeamStep(ReaderFilter):
+    """A reader's scans with their beams ``step_deg`` apart from the first, for a log whose
+    records state the laser's angular step wrong (``--beam-step``)."""
+
+    def __init__(self, reader: LogReader, step_deg: float) -> None:
+        super().__init__(reader)
+        self.step = math.radians(step_deg)
+
+    def scans(self) -> Iterator[Scan]:
+        for scan in self.reader.scans():
+            steps = np.arange(len(scan.angles), dtype=np.float64)
+            yield dataclasses.replace(scan, angles=scan.angles[:1] + self.step * steps)
+
+
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
-    """``reader`` behind the :class:`ScanGuard`, and in a :class:`LogWindow` when the options
-    ask for part of the log: what every reader's scans go through (plugins' too)."""
+    """``reader`` behind the :class:`ScanGuard` (its beams first spread as ``beam_step_deg``
+    says, where set), and in a :class:`LogWindow` when the options ask for part of the log:
+    what every reader's scans go through (plugins' too)."""
+    if options.beam_step_deg is not None:
+        reader = BeamStep(reader, options.beam_step_deg)
     reader = ScanGuard(reader, name)
     if options.start_s is None and options.end_s is None and options.max_scans is None:
         return reader

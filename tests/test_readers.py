@@ -62,6 +62,24 @@ def test_info_describes_each_format(simulated, cli, fmt):
     assert d["fov_deg"] == [180.0] and d["duration_s"] == pytest.approx(40.0)
 
 
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_beam_step_spreads_every_formats_beams_from_the_first(simulated, cli, fmt):
+    """A log that states its beams' spacing wrong (a converter's fov/(n-1) for a laser's
+    fov/n) is read with the spacing a user gives, whatever its format; the first beam stays."""
+    from dynslam_formats import ReaderOptions, open_log
+
+    r = cli("info", simulated[fmt], "--json", "--beam-step", "0.5")
+    assert r.exit_code == 0, r.stderr
+    assert json.loads(r.stdout)["fov_deg"] == [90.0]  # 181 beams half a degree apart
+    source, _, reader = open_log(simulated[fmt], ReaderOptions(beam_step_deg=0.5))
+    try:
+        scan = next(iter(reader.scans()))
+    finally:
+        source.close()
+    np.testing.assert_allclose(np.diff(scan.angles), np.radians(0.5), atol=1e-6)
+    assert scan.angles[0] == pytest.approx(-np.pi / 2, abs=1e-6)
+
+
 def test_player_stage_log(datasets, cli, tmp_path):
     r = cli("process", datasets / "player/stage-hall-with-obstacles.log", "-o", tmp_path / "o",
             "-q")
