@@ -553,6 +553,9 @@ def config_command(config_file: Path | None) -> None:
 @click.option("--odometry-noise", type=click.FloatRange(min=0), default=1.0, show_default=True,
               help="Scale of the odometry error model; 0 = odometry equals the truth.")
 @click.option("--walkers", type=click.IntRange(2, 10), help="Moving robots in 'hall' [default: 4].")
+@click.option("--stop-and-go", type=click.FloatRange(min=0), default=0, metavar="SECONDS",
+              help="Walkers (hall's robots, crowd's people) stand still SECONDS after every "
+                   "4 m they walk, then walk on.")
 @click.option("--beams", type=click.IntRange(min=2), default=181, show_default=True,
               help="Beams per scan.")
 @click.option("--fov", type=click.FloatRange(1, 360), default=180, show_default=True,
@@ -574,8 +577,8 @@ def config_command(config_file: Path | None) -> None:
                    "brought in); boxes stand still. Written to session1/, session2/, ...")
 @click.option("--force", is_flag=True, help="Replace an existing output folder.")
 def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
-             odometry_noise: float, walkers: int | None, beams: int, fov: float,
-             max_range: float, range_noise: float, record: str, log_format: str,
+             odometry_noise: float, walkers: int | None, stop_and_go: float, beams: int,
+             fov: float, max_range: float, range_noise: float, record: str, log_format: str,
              sessions: int, force: bool) -> None:
     """Simulate a dynamic WORLD and write its log plus the ground truth.
 
@@ -620,6 +623,8 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
         laser = LaserModel(beams=beams, fov_deg=fov, max_range_m=max_range, noise_m=range_noise)
         noise = OdometryNoise().scaled(odometry_noise)
         the_world = build_world(world, seed, walkers)
+        for walker in the_world.walkers:
+            walker.pause_s = stop_and_go
         spots = furnish(the_world, seed) if sessions > 1 else []
         name = f"{world}{LOG_NAMES[log_format]}"
         with atomic_output_dir(output, force, ours=_simulated) as tmp:

@@ -94,20 +94,34 @@ class Box:
         return np.array([[x0, y0, x1, y0], [x1, y0, x1, y1], [x1, y1, x0, y1], [x0, y1, x0, y0]])
 
 
+PAUSE_EVERY_M = 4.0  # a stop-and-go walker stands still after every this many metres
+
+
 @dataclass
 class Walker:
-    """A persistent mover: a disc walking a closed loop of waypoints at constant speed."""
+    """A persistent mover: a disc walking a closed loop of waypoints at constant speed, and
+    where ``pause_s`` is set, standing still that long after every ``PAUSE_EVERY_M`` walked
+    (a person who stops and walks on)."""
 
     id: str
     radius: float
     loop: list[tuple[float, float]]
     speed: float
     phase_m: float = 0.0
+    pause_s: float = 0.0
+
+    def walked(self, t: float) -> float:
+        """Metres walked by time ``t``."""
+        if self.pause_s <= 0:
+            return self.speed * t
+        leg_s = PAUSE_EVERY_M / self.speed
+        legs, into = divmod(t, leg_s + self.pause_s)
+        return legs * PAUSE_EVERY_M + self.speed * min(into, leg_s)
 
     def position(self, t: float) -> tuple[float, float]:
         pts = np.array([*self.loop, self.loop[0]], dtype=float)
         seg = np.hypot(*np.diff(pts, axis=0).T)
-        s = (self.phase_m + self.speed * t) % seg.sum()
+        s = (self.phase_m + self.walked(t)) % seg.sum()
         i = int(np.searchsorted(np.cumsum(seg), s, side="right"))
         i = min(i, len(seg) - 1)
         f = (s - (np.cumsum(seg)[i] - seg[i])) / seg[i]
@@ -332,7 +346,8 @@ def simulate(world: World, duration_s: float, rate_hz: float = 10.0, seed: int =
                                "positions": [[0.0, list(b.center)]]}
     for w in world.walkers:
         truth.objects[w.id] = {"kind": "walker", "radius": w.radius, "loop": w.loop,
-                               "speed": w.speed, "phase_m": w.phase_m}
+                               "speed": w.speed, "phase_m": w.phase_m,
+                               **({"pause_s": w.pause_s} if w.pause_s else {})}
     odom = world.start if odometry_start is None else odometry_start
     return _run(world, duration_s, rate_hz, seed, laser, noise, truth, odom), truth
 

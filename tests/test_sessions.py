@@ -16,7 +16,9 @@ from dynslam_cli.simulate import (
     FIXTURE_SPOTS,
     FIXTURE_WALL_GAP_M,
     FIXTURES,
+    PAUSE_EVERY_M,
     WORLD_NAMES,
+    Walker,
     build_world,
     furnish,
     next_session,
@@ -71,3 +73,18 @@ def test_two_sessions_the_second_placed_in_the_first_and_its_changes_found(tmp_p
     for kind in ("removed_since_prior", "added_since_prior"):
         assert sessions[kind]["true"] == 2, sessions  # one moved, one taken away / brought in
         assert sessions[kind]["recall"] == 1.0 and sessions[kind]["precision"] == 1.0, sessions
+
+
+def test_stop_and_go_walkers_stand_still_after_every_few_metres(cli, tmp_path: Path) -> None:
+    """``simulate --stop-and-go S``: each walker walks PAUSE_EVERY_M, stands S seconds, walks
+    on (issue: a person who stops and walks on); its truth says so."""
+    walker = Walker("p", 0.2, [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)], 0.5,
+                    pause_s=5.0)
+    leg = PAUSE_EVERY_M / walker.speed
+    assert walker.position(leg + 0.1) == walker.position(leg + 4.9) == (PAUSE_EVERY_M, 0.0)
+    assert walker.position(leg + 5.0 + 2.0) == pytest.approx((PAUSE_EVERY_M + 1.0, 0.0))
+    r = cli("simulate", "crowd", "-o", tmp_path / "sg", "--duration", "5", "--stop-and-go", "5")
+    assert r.exit_code == 0, r.stderr
+    truth = json.loads((tmp_path / "sg" / "truth.json").read_text())
+    walkers = [o for o in truth["objects"].values() if o["kind"] == "walker"]
+    assert len(walkers) == 3 and all(w["pause_s"] == 5.0 for w in walkers)
