@@ -46,7 +46,8 @@ from dynslam_formats.truth import write_truth
 HALF = 0.3
 
 
-def detection_at_gap(gap: float, folder: Path, neighbourhood_m: float = 0.1) -> dict:
+def detection_at_gap(gap: float, folder: Path, neighbourhood_m: float = 0.1,
+                     surface_m: float = 0.0) -> dict:
     world = build_world("arena")
     far = 12.0 - gap - HALF
     near = gap + HALF
@@ -60,7 +61,7 @@ def detection_at_gap(gap: float, folder: Path, neighbourhood_m: float = 0.1) -> 
     t["objects"] = {k: v for k, v in t["objects"].items() if k == "box0"}
     source, _, reader = open_log(str(folder / "arena.log"), ReaderOptions())
     config = Config(ekf=EkfConfig(localization="odometry"),
-                    dynamic=DynamicConfig(neighbourhood_m=neighbourhood_m))
+                    dynamic=DynamicConfig(neighbourhood_m=neighbourhood_m, surface_m=surface_m))
     _, snaps = snapshots_at(reader.scans(), config, [e["time"] for e in t["events"]])
     source.close()
     return score_events(snaps, t, MapThresholds(0.1, 0.9))
@@ -70,10 +71,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--neighbourhood", type=float, default=DynamicConfig().neighbourhood_m,
                     help="[dynamic] neighbourhood_m (m)")
+    ap.add_argument("--surface", type=float, default=DynamicConfig().surface_m,
+                    help="[dynamic] surface_m (m)")
     args = ap.parse_args()
     for gap in (0.05, 0.10, 0.20, 0.40):
         with tempfile.TemporaryDirectory() as d:
-            ev = detection_at_gap(gap, Path(d), args.neighbourhood)
+            ev = detection_at_gap(gap, Path(d), args.neighbourhood, args.surface)
         m, v = ev["moved_objects_detected"], ev["vacated_places_cleared"]
         print(f"gap {gap:.2f} m: moved detected {m['detected']}/{m['of']}, "
               f"detected static {m['detected_static']}, vacated cleared {v['cleared']}/{v['of']}")

@@ -105,6 +105,39 @@ def test_box_story_from_the_paper():
     assert _cell(slam, "dynamic", 3.01, 0.0) < 0.1
 
 
+def _wall_scan(t: float, rng: np.random.Generator, y: float = 0.0,
+               board_gap: float | None = None) -> Scan:
+    """A wall 3 m ahead (1 cm range noise) seen from (0, y); with ``board_gap``, a 0.6 m
+    board stands that far in front of it, facing the robot."""
+    angles = np.linspace(-0.6, 0.6, 121)
+    depth = np.full(angles.shape, 3.0)
+    if board_gap is not None:
+        depth[np.abs(3.0 * np.tan(angles) + y) < 0.3] = 3.0 - board_gap
+    ranges = depth / np.cos(angles) + rng.normal(0.0, 0.01, angles.shape)
+    return Scan(stamp=t, ranges=ranges, angles=angles, max_range=8.0, odom=Pose2D(0.0, y, 0.0))
+
+
+@pytest.mark.parametrize("surface_m", [0.0, 0.03])
+def test_object_close_to_a_wall_is_dynamic_where_the_surface_is_compared(surface_m):
+    """The paper's failure case (Sec. 5): a board 10 cm in front of a wall lies within the
+    neighbourhood rule's window, which takes it for the wall; compared with the wall's own
+    surface (``[dynamic] surface_m``) it is a new object, in D; the noisy wall alone is not."""
+    rng = np.random.default_rng(0)
+    slam = DynamicSlam(Config(ekf=STILL, dynamic=DynamicConfig(surface_m=surface_m)))
+    for t in range(60):  # the wall from five places
+        slam.step(_wall_scan(t, rng, y=(t % 5) * 0.2 - 0.4))
+    dynamic = slam.grids.layers["dynamic"]
+    assert not (probability(dynamic) > 0.5).any()
+    for t in range(60, 80):
+        slam.step(_wall_scan(t, rng, board_gap=0.1))
+    board = slam.grids.cell_centres(np.flatnonzero(probability(dynamic) > 0.9))
+    if surface_m == 0:
+        assert len(board) == 0  # the window's rule: the board is the wall's
+    else:
+        assert len(board) >= 10 and np.all(np.abs(board[:, 0] - 2.9) < 0.05)
+        assert np.all(np.abs(board[:, 1]) < 0.35)
+
+
 def test_no_dynamic_is_an_ordinary_grid():
     slam = DynamicSlam(Config(dynamic=DynamicConfig(enabled=False), ekf=STILL))
     for t in range(10):

@@ -175,6 +175,10 @@ class GridStack:
             np.arange(self.tiles, dtype=np.int32)
         self._table, self._table_origin = table, (tr0, tc0)
 
+    def add_layer(self, name: str, dtype: type) -> None:
+        """Another layer, of any number type, over the cells stored so far and to come (0)."""
+        self.layers[name] = np.zeros(len(self._listed), dtype)
+
     def reserve_like(self, other: GridStack) -> None:
         """Take another stack's extent and room for its tiles at once (rather than growing,
         and copying, scan by scan)."""

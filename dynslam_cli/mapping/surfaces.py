@@ -1,0 +1,108 @@
+"""Where in its cell S's surface lies: the neighbourhood rule at sub-cell precision.
+
+The neighbourhood rule (paper Sec. 5) compares an end point with S^{t-1} over a window of
+``neighbourhood_m``: Occupied if any cell there is, Unknown if any is not Free. So a wall's
+end point that falls a cell off the wall (range noise, rounding, pose error) stays the
+wall's; and so does whatever stands closer to a wall than that, or next to a place never
+seen (the strip behind a wall's end points): the paper's own failure case, a box moved
+next to a wall, goes into S.
+
+With ``[dynamic] surface_m`` above 0, each cell also keeps the spread of the end points S
+took as static there (their count, sums and second moments: a short segment where a wall
+runs through the cell, a blob where few points fell). A hit in a cell S holds Free, which
+the window would call Occupied or Unknown, stays the window's only where most of the cell's
+end points lie on a surface drawn in the window's cells that S does not hold Free: across
+it within the scan's tolerance, and along it within half a cell of its ends. Elsewhere it
+is Free: something stands where the robot saw nothing (Table 2: into D). The tolerance is
+``surface_m``, or FIT_SPREADS times the median distance of the scan's end points near S's
+surfaces from them where the scan fits S worse than that (its pose erred).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dynslam_cli.mapping.grid import GridStack
+
+MOMENTS = ("surface_n", "surface_x", "surface_y", "surface_xx", "surface_xy", "surface_yy")
+"""Per cell: how many end points, their sums (x, y relative to the cell's centre, metres)
+and their sums of products."""
+MIN_POINTS = 3  # end points that make a cell's surface a line; fewer: a point
+FIT_SPREADS = 3.0
+
+
+class Surfaces:
+    """The surface of S within each cell, kept on the grid stack as float32 layers."""
+
+    def __init__(self, grids: GridStack, surface_m: float, radius: int) -> None:
+        self.grids = grids
+        self.surface_m = surface_m
+        self.radius = radius
+        for name in MOMENTS:
+            grids.add_layer(name, np.float32)
+
+    def add(self, cells: np.ndarray, points: np.ndarray) -> None:
+        """End points (N × 2, map frame) in their cells (flat indices) that S took as static."""
+        if not len(cells):
+            return
+        offset = points - self.grids.cell_centres(cells)
+        x, y = offset[:, 0], offset[:, 1]
+        layers = self.grids.layers
+        for name, value in zip(MOMENTS, (np.ones_like(x), x, y, x * x, x * y, y * y),
+                               strict=True):
+            np.add.at(layers[name], cells, value.astype(np.float32))
+
+    def offsets(self, points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """How far each end point lies from the surface of the cell (flat index) across it,
+        and along it beyond the surface's ends (its points' mean ± √3 times their spread
+        along it: a segment's half length), in metres; where the cell has fewer than
+        MIN_POINTS, both the distance to their mean; NaN where it has none. Beyond the ends
+        is where an object standing in line with a surface would grow it cell by cell."""
+        layers = self.grids.layers
+        n = layers["surface_n"][cells].astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mx, my = layers["surface_x"][cells] / n, layers["surface_y"][cells] / n
+            sxx = layers["surface_xx"][cells] / n - mx ** 2
+            sxy = layers["surface_xy"][cells] / n - mx * my
+            syy = layers["surface_yy"][cells] / n - my ** 2
+        angle = 0.5 * np.arctan2(2 * sxy, sxx - syy)  # the surface's direction
+        length = np.sqrt(np.maximum(3 * ((sxx + syy) / 2 + np.hypot((sxx - syy) / 2, sxy)), 0))
+        d = points - self.grids.cell_centres(cells) - np.column_stack((mx, my))
+        c, s = np.cos(angle), np.sin(angle)
+        across = np.abs(d[:, 1] * c - d[:, 0] * s)
+        beyond = np.maximum(np.abs(d[:, 0] * c + d[:, 1] * s) - length, 0.0)
+        point = n < MIN_POINTS
+        across[point] = beyond[point] = np.hypot(d[point, 0], d[point, 1])
+        return across, beyond
+
+    def nearest(self, points: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                free: float) -> np.ndarray:
+        """How far each end point (N × 2, in world cell rows, cols) lies across the nearest
+        surface drawn in a cell of the window that S does not hold Free (stored log-odds
+        above ``free``, in steps) and that reaches it along (the point at most half a cell
+        beyond the surface's ends); inf where none does."""
+        grids = self.grids
+        out = np.full(len(points), np.inf)
+        span = np.arange(-self.radius, self.radius + 1)
+        static, count = grids.layers["static"], grids.layers["surface_n"]
+        reach = grids.resolution / 2
+        for dr in span:
+            for dc in span:
+                flat = grids.flat_cells(rows + dr, cols + dc)
+                ok = flat >= 0
+                ok[ok] = (static[flat[ok]] > free) & (count[flat[ok]] > 0)
+                if not ok.any():
+                    continue
+                across, beyond = self.offsets(points[ok], flat[ok])
+                i = np.flatnonzero(ok)
+                out[i] = np.minimum(out[i], np.where(beyond <= reach, across, np.inf))
+        return out
+
+    def tolerance(self, across: np.ndarray) -> float:
+        """How far off a surface an end point of this scan may lie and be on it, from how
+        far its end points near S's walls lie off them (``across``): ``surface_m``, or
+        FIT_SPREADS times their median where the scan fits S worse (its pose erred)."""
+        across = across[np.isfinite(across)]
+        if not len(across):
+            return self.surface_m
+        return max(self.surface_m, FIT_SPREADS * float(np.median(across)))
