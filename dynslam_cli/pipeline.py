@@ -22,7 +22,7 @@ import numpy as np
 
 from dynslam_cli.config import Config
 from dynslam_cli.localization.cornerslam import CornerSlam
-from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
+from dynslam_cli.localization.frontend import Measurement, ScanMeasurer, match_counts
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.mapping.dynamic import DynamicMapper
 from dynslam_cli.mapping.grid import GridStack
@@ -56,7 +56,8 @@ class DynamicSlam:
                                    keep_dynamic=online_dynamic or not use_graph)
         self._trajectory = array("d")
         self._slam: CornerSlam | None = None
-        self._measure = front.measurement if front is not None else measurer(config)
+        self._measure = (front.measurement if front is not None else
+                         ScanMeasurer.configured(config.ekf, config.match, config.corners))
         self._motion_sources: Counter[str] = Counter()
         self._loops = (LoopCloser(config.loop, config.match, config.ekf.noise,
                                   prior.walls() if prior is not None else None)
@@ -71,12 +72,6 @@ class DynamicSlam:
         if self._prior is not None:
             self._prior.seed(mapper.grids, mapper.changes)
         return mapper
-
-    @property
-    def pose(self) -> Pose2D:
-        """The last scan's pose as estimated at its time (map frame)."""
-        x, y, theta = self._trajectory[-3:]
-        return Pose2D(x, y, theta)
 
     @property
     def grids(self) -> GridStack:
@@ -167,11 +162,7 @@ class DynamicSlam:
 
     def counts(self) -> dict[str, int]:
         """How localization went, for ``summary.json``."""
-        out: dict[str, int] = {}
-        if self.config.match.enabled:
-            m = self._motion_sources
-            out.update(scan_matches=m["matched"] + m["recovered"],
-                       scan_match_recoveries=m["recovered"], odometry_fallbacks=m["fallback"])
+        out = match_counts(self._motion_sources) if self.config.match.enabled else {}
         if self._loops is not None:
             out.update(self._loops.counts())
         if self._prior is not None:
@@ -189,14 +180,6 @@ class DynamicSlam:
                                           if self._loops is not None and self._count else None)
         places = np.array([[x, y] for _, _, _, x, y, _ in corners]).reshape(-1, 2)
         return landmarks_of(corners, mapper.classify_landmarks(places))
-
-
-def measurer(config: Config) -> ScanMeasurer:
-    """What ``config`` has the filter measure from each scan: with the EKF, the corners and
-    (where scan matching is on) the scan-matched motion; with odometry alone, neither."""
-    ekf = config.ekf.filtered
-    return ScanMeasurer(config.match if ekf and config.match.enabled else None,
-                        config.ekf.noise, config.corners if ekf else None)
 
 
 def run(scans: Iterable[Scan], config: Config,

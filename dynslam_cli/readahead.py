@@ -23,8 +23,7 @@ from typing import TYPE_CHECKING, BinaryIO
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import DynslamError
-from dynslam_cli.localization.frontend import Measurement
-from dynslam_cli.pipeline import measurer
+from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
 from dynslam_cli.types import Scan
 
 if TYPE_CHECKING:
@@ -43,7 +42,7 @@ class FrontEnd:
     def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
         self._reader = reader
         self._source = source
-        self._measure = measurer(config)
+        self._measure = ScanMeasurer.configured(config.ekf, config.match, config.corners)
         self._laser = config.laser
         self._scan: Scan | None = None
         self._measurement: Measurement | None = None

@@ -10,13 +10,14 @@ ahead of them in another process (dynslam_cli.readahead).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections import Counter
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from dynslam_cli.localization.cornerslam import observe_corners
 from dynslam_cli.localization.scanmatch import ScanMatcher, WheelOdometry
-from dynslam_cli.sections import CornerConfig, MatchConfig, NoiseModel
+from dynslam_cli.sections import CornerConfig, EkfConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 
@@ -37,6 +38,14 @@ class Motion(NamedTuple):
         return self.source in ("matched", "recovered")
 
 
+def match_counts(sources: Counter[str]) -> dict[str, Any]:
+    """How the scan matching went, from how many motions came from each source, for
+    ``summary.json``."""
+    return {"scan_matches": sources["matched"] + sources["recovered"],
+            "scan_match_recoveries": sources["recovered"],
+            "odometry_fallbacks": sources["fallback"]}
+
+
 class Measurement(NamedTuple):
     """What the filter measures from one scan alone: its motion and its corners ((range,
     bearing) from the robot, convex); no corners when localization is odometry alone."""
@@ -55,6 +64,15 @@ class ScanMeasurer:
         self._matcher = ScanMatcher(match, motion_noise) if match is not None else None
         self._wheel = WheelOdometry()
         self._corners = corners
+
+    @classmethod
+    def configured(cls, ekf: EkfConfig, match: MatchConfig, corners: CornerConfig
+                   ) -> ScanMeasurer:
+        """What the filter measures under these sections: with the EKF, the corners and
+        (where scan matching is on) the scan-matched motion; with odometry alone, neither."""
+        filtered = ekf.filtered
+        return cls(match if filtered and match.enabled else None, ekf.noise,
+                   corners if filtered else None)
 
     def __call__(self, scan: Scan) -> Measurement:
         corners = observe_corners(scan, self._corners) if self._corners is not None else []
