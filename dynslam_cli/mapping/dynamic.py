@@ -135,7 +135,7 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
-        self._surfaces = (Surfaces(self.grids, d.surface_m, self._radius)
+        self._surfaces = (Surfaces(self.grids, d.surface_m, self._radius, laser.min_range_m)
                           if d.enabled and d.surface_m > 0 and self._radius > 0 else None)
         self.changes = (ChangeRecorder(changes, m, self.grids)
                         if changes is not None and changes.enabled and d.enabled else None)
@@ -149,15 +149,13 @@ class DynamicMapper:
         observation = self.observe(pose, scan)
         free_prev, hit_prev = self.classify_against_static_map(observation)
         if self._surfaces is not None:
-            points, where = self.end_points(pose, scan, observation)
-            hit_prev = self.off_the_surface(observation, hit_prev, points, where)
+            hit_prev = self.off_the_surface(pose, scan, observation, hit_prev)
         if self.changes is not None:
             self.changes.record(scan.stamp, observation, hit_prev == FREE)
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
         if self._surfaces is not None:
-            static = hit_prev[where] != FREE
-            self._surfaces.add(observation.hit[where[static]], points[static])
+            self._surfaces.learn(observation, hit_prev != FREE)
 
     def classify_landmarks(self, positions: np.ndarray) -> list[str]:
         """Table 3: each landmark's class ("static" or "dynamic") by the state of S^{t-1}
@@ -177,49 +175,22 @@ class DynamicMapper:
         return self.grids.observe(compose(pose, scan.laser), scan.ranges, scan.angles,
                                   scan.max_range, laser.min_range_m, laser.clear_cap_m)
 
-    def end_points(self, pose: Pose2D, scan: Scan, obs: Observation
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """The scan's end points that hit something (N × 2, map frame), and where each
-        one's cell is in ``obs.hit``."""
-        laser = compose(pose, scan.laser)
-        r = scan.ranges
-        with np.errstate(invalid="ignore"):
-            hit = (r > self._laser.min_range_m) & (r < scan.max_range)
-        a = laser.theta + scan.angles[hit]
-        points = np.column_stack((laser.x + r[hit] * np.cos(a), laser.y + r[hit] * np.sin(a)))
-        cells = self.grids.flat_cells(*self.grids.world_cells_of(points[:, 0], points[:, 1]))
-        order = np.argsort(obs.hit, kind="stable")
-        where = order[np.minimum(np.searchsorted(obs.hit, cells, sorter=order),
-                                 len(order) - 1)] if len(order) else np.zeros(0, np.int64)
-        listed = (cells >= 0) & (obs.hit[where] == cells) if len(order) else cells < 0
-        return points[listed], where[listed]
-
-    def off_the_surface(self, obs: Observation, hit_prev: np.ndarray, points: np.ndarray,
-                        where: np.ndarray) -> np.ndarray:
-        """``hit_prev``, but Free for a hit cell that S holds Free while the window around it
-        says Occupied or Unknown, where most of its end points (``points``, in the cells
-        ``obs.hit[where]``) lie off the surfaces drawn in the cells around it that S does
-        not hold Free (dynslam_cli.mapping.surfaces): something stands where the robot saw
-        nothing, next to a wall but not on it."""
+    def off_the_surface(self, pose: Pose2D, scan: Scan, obs: Observation,
+                        hit_prev: np.ndarray) -> np.ndarray:
+        """``hit_prev``, but Free for a hit cell that S holds firmly Free (halfway in log-odds
+        from the Free threshold to its floor) while the window around it says Occupied or
+        Unknown, where most of its end points lie off the surfaces around it
+        (dynslam_cli.mapping.surfaces): something stands where the robot saw nothing,
+        next to a wall but not on it."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
-        own = classify_static(stored, m.free_threshold, m.occupied_threshold)
         firm = (logit(m.free_threshold) + logit(m.p_clamp_min)) / 2 / LOGODDS_STEP
-        doubt = (hit_prev != FREE) & (stored <= firm)
-        asked = doubt[where]
-        if not asked.any():
-            return hit_prev
-        walls = own[where] == OCCUPIED
-        on_walls, _ = self._surfaces.offsets(points[walls], obs.hit[where[walls]])
-        rows, cols = self.grids.world_cells_of(points[asked, 0], points[asked, 1])
-        off = self._surfaces.nearest(points[asked], rows, cols,
-                                     logit(m.free_threshold) / LOGODDS_STEP)
-        on = off <= self._surfaces.tolerance(np.concatenate((on_walls, off)))
-        cells = where[asked]
-        kept = (2 * np.bincount(cells[on], minlength=len(obs.hit))
-                >= np.bincount(cells, minlength=len(obs.hit)))
+        freed = self._surfaces.off_surfaces(
+            compose(pose, scan.laser), scan, obs, (hit_prev != FREE) & (stored <= firm),
+            stored > logit(m.occupied_threshold) / LOGODDS_STEP,
+            logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()
-        out[doubt & ~kept] = FREE
+        out[freed] = FREE
         return out
 
     def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:

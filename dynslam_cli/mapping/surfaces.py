@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dynslam_cli.mapping.grid import GridStack
+from dynslam_cli.mapping.grid import GridStack, Observation
+from dynslam_cli.types import Pose2D, Scan
 
 MOMENTS = ("surface_n", "surface_x", "surface_y", "surface_xx", "surface_xy", "surface_yy")
 """Per cell: how many end points, their sums (x, y relative to the cell's centre, metres)
@@ -34,15 +35,58 @@ FIT_SPREADS = 3.0
 class Surfaces:
     """The surface of S within each cell, kept on the grid stack as float32 layers."""
 
-    def __init__(self, grids: GridStack, surface_m: float, radius: int) -> None:
+    def __init__(self, grids: GridStack, surface_m: float, radius: int,
+                 min_range_m: float) -> None:
         self.grids = grids
         self.surface_m = surface_m
         self.radius = radius
+        self.min_range_m = min_range_m
+        self._last = (np.zeros((0, 2)), np.zeros(0, np.int64))  # the last scan's end points
         for name in MOMENTS:
             grids.add_layer(name, np.float32)
 
-    def add(self, cells: np.ndarray, points: np.ndarray) -> None:
-        """End points (N × 2, map frame) in their cells (flat indices) that S took as static."""
+    def end_points(self, laser: Pose2D, scan: Scan, obs: Observation
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The scan's end points that hit something (N × 2, map frame) seen from the laser's
+        pose, and where each one's cell is in ``obs.hit``."""
+        r = scan.ranges
+        with np.errstate(invalid="ignore"):
+            hit = (r > self.min_range_m) & (r < scan.max_range)
+        a = laser.theta + scan.angles[hit]
+        points = np.column_stack((laser.x + r[hit] * np.cos(a), laser.y + r[hit] * np.sin(a)))
+        if not len(obs.hit):
+            return points[:0], np.zeros(0, np.int64)
+        cells = self.grids.flat_cells(*self.grids.world_cells_of(points[:, 0], points[:, 1]))
+        order = np.argsort(obs.hit, kind="stable")
+        where = order[np.minimum(np.searchsorted(obs.hit, cells, sorter=order), len(order) - 1)]
+        listed = (cells >= 0) & (obs.hit[where] == cells)
+        return points[listed], where[listed]
+
+    def off_surfaces(self, laser: Pose2D, scan: Scan, obs: Observation, doubt: np.ndarray,
+                     walls: np.ndarray, free: float) -> np.ndarray:
+        """Which hit cells (of ``obs.hit``) in ``doubt`` have most of their end points off
+        every surface drawn in the window around them in cells S does not hold Free (stored
+        log-odds above ``free``, in steps); ``walls``: the hit cells S holds Occupied, whose
+        end points tell how well the scan fits S."""
+        points, where = self._last = self.end_points(laser, scan, obs)
+        asked = doubt[where]
+        if not asked.any():
+            return np.zeros(len(obs.hit), bool)
+        on_walls, _ = self.offsets(points[walls[where]], obs.hit[where[walls[where]]])
+        rows, cols = self.grids.world_cells_of(points[asked, 0], points[asked, 1])
+        off = self.nearest(points[asked], rows, cols, free)
+        on = off <= self.tolerance(np.concatenate((on_walls, off)))
+        cells = where[asked]
+        kept = (2 * np.bincount(cells[on], minlength=len(obs.hit))
+                >= np.bincount(cells, minlength=len(obs.hit)))
+        return doubt & ~kept
+
+    def learn(self, obs: Observation, static: np.ndarray) -> None:
+        """Draw the last scan's end points into the surfaces of the hit cells (of
+        ``obs.hit``) that S took as ``static``."""
+        points, where = self._last
+        keep = static[where]
+        cells, points = obs.hit[where[keep]], points[keep]
         if not len(cells):
             return
         offset = points - self.grids.cell_centres(cells)
