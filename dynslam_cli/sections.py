@@ -152,15 +152,14 @@ class DynamicConfig:
     (metres), so small pose or rounding errors do not turn walls dynamic (Sec. 5)."""
     surface_m: float = 0.0
     """Above 0: a hit where S was firmly Free, which the window would hand to a wall beside
-    it (or to a place never seen), stays the wall's only if it lies within this distance
-    (metres) of the surface the wall's own end points drew, or within three times the
-    scan's median misfit where that is wider (dynslam_cli.mapping.surfaces): a box 5 or
-    10 cm from a wall goes into D, not S (bench/near_walls.py: 10 of 10 moves found at both
-    gaps with 0.03; 1 of 10 with 0). 0: the window alone, the paper's rule. Off: where the
-    pose errs by more than the window the walls turn dynamic (the office with true odometry:
-    D's precision 0.11, 1.00 with 0), and the worlds' change events lose a little
-    (corridors with true odometry: 14 of 16 box arrivals, 16 with 0; hall 5 of 6, 6).
-    It costs 24 bytes a cell more."""
+    it, stays the wall's only if it lies within this distance (metres) of the surface the
+    wall's own end points drew, or within three times how far the scan's end points around
+    it lie off S's walls where that is wider (dynslam_cli.mapping.surfaces): a box 5 cm from
+    a wall goes into D, not S (bench/near_walls.py: 10 of 10 moves found at a 0.05 m gap
+    and 8 of 10 at 0.10 m with 0.03; 1 and 1 of 10 with 0). 0: the window alone, the
+    paper's rule. Off: the worlds' box arrivals found fall a little (corridors with true
+    odometry 15 of 16, hall 5 of 6; 16 and 6 with 0), and MIT CSAIL's D grows from 79 to
+    177 cells; it costs 24 bytes a cell more."""
 
     def check(self) -> None:
         require([

@@ -178,15 +178,16 @@ class DynamicMapper:
     def off_the_surface(self, pose: Pose2D, scan: Scan, obs: Observation,
                         hit_prev: np.ndarray) -> np.ndarray:
         """``hit_prev``, but Free for a hit cell that S holds firmly Free (halfway in log-odds
-        from the Free threshold to its floor) while the window around it says Occupied or
-        Unknown, where most of its end points lie off the surfaces around it
+        from the Free threshold to its floor) while the window around it says Occupied,
+        where most of its end points lie off the surfaces around it
         (dynslam_cli.mapping.surfaces): something stands where the robot saw nothing,
-        next to a wall but not on it."""
+        next to a wall but not on it. Next to a place never seen the window's Unknown
+        stands (the paper's "static until seen to move")."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
         firm = (logit(m.free_threshold) + logit(m.p_clamp_min)) / 2 / LOGODDS_STEP
         freed = self._surfaces.off_surfaces(
-            compose(pose, scan.laser), scan, obs, (hit_prev != FREE) & (stored <= firm),
+            compose(pose, scan.laser), scan, obs, (hit_prev == OCCUPIED) & (stored <= firm),
             stored > logit(m.occupied_threshold) / LOGODDS_STEP,
             logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()

@@ -1,24 +1,27 @@
 """Where in its cell S's surface lies: the neighbourhood rule at sub-cell precision.
 
 The neighbourhood rule (paper Sec. 5) compares an end point with S^{t-1} over a window of
-``neighbourhood_m``: Occupied if any cell there is, Unknown if any is not Free. So a wall's
-end point that falls a cell off the wall (range noise, rounding, pose error) stays the
-wall's; and so does whatever stands closer to a wall than that, or next to a place never
-seen (the strip behind a wall's end points): the paper's own failure case, a box moved
-next to a wall, goes into S.
+``neighbourhood_m``: Occupied if any cell there is. So a wall's end point that falls a cell
+off the wall (range noise, rounding, pose error) stays the wall's; and so does whatever
+stands closer to a wall than that: the paper's own failure case, a box moved next to a
+wall, goes into S.
 
 With ``[dynamic] surface_m`` above 0, each cell also keeps the spread of the end points S
 took as static there (their count, sums and second moments: a short segment where a wall
-runs through the cell, a blob where few points fell). A hit in a cell S holds Free, which
-the window would call Occupied or Unknown, stays the window's only where most of the cell's
-end points lie on a surface drawn in the window's cells that S does not hold Free: across
-it within the scan's tolerance, and along it within half a cell of its ends. Elsewhere it
-is Free: something stands where the robot saw nothing (Table 2: into D). The tolerance is
-``surface_m``, or FIT_SPREADS times the median distance of the scan's end points near S's
-surfaces from them where the scan fits S worse than that (its pose erred).
+runs through the cell, a blob where few points fell). A hit in a cell S holds firmly Free,
+which the window would hand to an Occupied neighbour, stays the window's only where most of
+the cell's end points lie on a surface drawn in the window's cells that S does not hold
+Free: across it within a tolerance, and along it within half a cell of its ends (an object
+in line with a surface does not grow it cell by cell). Elsewhere it is Free: something
+stands where the robot saw nothing (Table 2: into D). The tolerance is as tight as the scan
+sits on S: ``surface_m``, or FIT_SPREADS times the median distance from their surfaces of
+the scan's end points near S's walls, or of the FIT_BEAMS beams on either side that fell on
+S's walls (a wall drawn a few centimetres apart on another pass), whichever is widest.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -30,6 +33,7 @@ MOMENTS = ("surface_n", "surface_x", "surface_y", "surface_xx", "surface_xy", "s
 and their sums of products."""
 MIN_POINTS = 3  # end points that make a cell's surface a line; fewer: a point
 FIT_SPREADS = 3.0
+FIT_BEAMS = 10  # a point's neighbours on each side whose fit to S's walls sets its tolerance
 
 
 class Surfaces:
@@ -72,10 +76,19 @@ class Surfaces:
         asked = doubt[where]
         if not asked.any():
             return np.zeros(len(obs.hit), bool)
-        on_walls, _ = self.offsets(points[walls[where]], obs.hit[where[walls[where]]])
+        on_wall = walls[where]
+        on_walls, _ = self.offsets(points[on_wall], obs.hit[where[on_wall]])
         rows, cols = self.grids.world_cells_of(points[asked, 0], points[asked, 1])
         off = self.nearest(points[asked], rows, cols, free)
-        on = off <= self.tolerance(np.concatenate((on_walls, off)))
+        fit = np.full(len(points), np.nan)
+        fit[on_wall] = on_walls
+        near = np.lib.stride_tricks.sliding_window_view(
+            np.pad(fit, FIT_BEAMS, constant_values=np.nan), 2 * FIT_BEAMS + 1)[asked]
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            local = FIT_SPREADS * np.nanmedian(near, axis=1)
+        tolerance = np.fmax(local, self.tolerance(np.concatenate((on_walls, off))))
+        on = off <= tolerance
         cells = where[asked]
         kept = (2 * np.bincount(cells[on], minlength=len(obs.hit))
                 >= np.bincount(cells, minlength=len(obs.hit)))
