@@ -8,15 +8,16 @@ wall, goes into S.
 
 With ``[dynamic] surface_m`` above 0, each cell also keeps the spread of the end points S
 took as static there (their count, sums and second moments: a short segment where a wall
-runs through the cell, a blob where few points fell). A hit in a cell S holds firmly Free,
-which the window would hand to an Occupied neighbour, stays the window's only where most of
-the cell's end points lie on a surface drawn in the window's cells that S does not hold
-Free: across it within a tolerance, and along it within half a cell of its ends (an object
-in line with a surface does not grow it cell by cell). Elsewhere it is Free: something
-stands where the robot saw nothing (Table 2: into D). The tolerance is as tight as the scan
-sits on S: ``surface_m``, or FIT_SPREADS times the median distance from their surfaces of
-the scan's end points near S's walls, or of the FIT_BEAMS beams on either side that fell on
-S's walls (a wall drawn a few centimetres apart on another pass), whichever is widest.
+runs through the cell). A hit in a cell S holds firmly Free, which the window would hand
+to an Occupied neighbour, stays the window's only where most of the cell's end points lie
+on a surface drawn in the window's cells that S does not hold Free: across it within a
+tolerance, and along it within a cell of its ends (an object in line with a surface does
+not grow it cell by cell: most of a cell's points lie farther). Elsewhere it is Free:
+something stands where the robot saw nothing (Table 2: into D). The tolerance is as tight
+as the scan sits on S: ``surface_m``, or FIT_SPREADS times the median distance from their
+surfaces of the scan's end points near S's walls, or of the FIT_BEAMS beams on either side
+that fell on S's walls (a wall drawn a few centimetres apart on another pass), whichever
+is widest.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from dynslam_cli.types import Pose2D, Scan
 MOMENTS = ("surface_n", "surface_x", "surface_y", "surface_xx", "surface_xy", "surface_yy")
 """Per cell: how many end points, their sums (x, y relative to the cell's centre, metres)
 and their sums of products."""
-MIN_POINTS = 3  # end points that make a cell's surface a line; fewer: a point
+MIN_POINTS = 3  # end points that draw a cell's surface; with fewer, a point is on it
 FIT_SPREADS = 3.0
 FIT_BEAMS = 10  # a point's neighbours on each side whose fit to S's walls sets its tolerance
 
@@ -112,9 +113,10 @@ class Surfaces:
     def offsets(self, points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """How far each end point lies from the surface of the cell (flat index) across it,
         and along it beyond the surface's ends (its points' mean ± √3 times their spread
-        along it: a segment's half length), in metres; where the cell has fewer than
-        MIN_POINTS, both the distance to their mean; NaN where it has none. Beyond the ends
-        is where an object standing in line with a surface would grow it cell by cell."""
+        along it: a segment's half length), in metres; 0 where the cell has fewer than
+        MIN_POINTS (too few to tell where its surface runs); NaN where it has none. Beyond
+        the ends is where an object standing in line with a surface would grow it cell by
+        cell."""
         layers = self.grids.layers
         n = layers["surface_n"][cells].astype(np.float64)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -128,21 +130,21 @@ class Surfaces:
         c, s = np.cos(angle), np.sin(angle)
         across = np.abs(d[:, 1] * c - d[:, 0] * s)
         beyond = np.maximum(np.abs(d[:, 0] * c + d[:, 1] * s) - length, 0.0)
-        point = n < MIN_POINTS
-        across[point] = beyond[point] = np.hypot(d[point, 0], d[point, 1])
+        unsure = n < MIN_POINTS  # too few points to tell where the surface runs: on it
+        across[unsure] = beyond[unsure] = 0.0
         return across, beyond
 
     def nearest(self, points: np.ndarray, rows: np.ndarray, cols: np.ndarray,
                 free: float) -> np.ndarray:
         """How far each end point (N × 2, in world cell rows, cols) lies across the nearest
         surface drawn in a cell of the window that S does not hold Free (stored log-odds
-        above ``free``, in steps) and that reaches it along (the point at most half a cell
-        beyond the surface's ends); inf where none does."""
+        above ``free``, in steps) and that reaches it along (the point at most a cell beyond
+        the surface's ends); inf where none does."""
         grids = self.grids
         out = np.full(len(points), np.inf)
         span = np.arange(-self.radius, self.radius + 1)
         static, count = grids.layers["static"], grids.layers["surface_n"]
-        reach = grids.resolution / 2
+        reach = grids.resolution
         for dr in span:
             for dc in span:
                 flat = grids.flat_cells(rows + dr, cols + dc)
