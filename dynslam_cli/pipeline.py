@@ -74,6 +74,11 @@ class DynamicSlam:
         return mapper
 
     @property
+    def pose(self) -> Pose2D:
+        """The last scan's pose as estimated at its time (map frame; the recording's TF)."""
+        return Pose2D(*self._trajectory[-3:])
+
+    @property
     def grids(self) -> GridStack:
         """The grids as mapped so far (with the pose estimates of their time)."""
         return self.mapper.grids

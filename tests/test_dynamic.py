@@ -19,6 +19,7 @@ from dynslam_cli.mapping.dynamic import (
     InverseModel,
     classify_neighbourhood,
     classify_static,
+    unknown_only_beside_walls,
 )
 from dynslam_cli.mapping.grid import GridStack, logit, probability, steps
 from dynslam_cli.pipeline import DynamicSlam
@@ -68,6 +69,25 @@ def test_neighbourhood_rule():
     assert classify_neighbourhood(g, beside_wall, 1, 0.1, 0.9)[0] == OCCUPIED
     assert classify_neighbourhood(g, open_space, 1, 0.1, 0.9)[0] == FREE
     assert classify_neighbourhood(g, near_unknown, 1, 0.1, 0.9)[0] == UNKNOWN
+
+
+def test_unknown_beside_a_wall_is_told_from_the_edge_of_the_seen():
+    """The strip in front of a wall that no beam passed (free space stops a cell short of a
+    hit) is Unknown beside Occupied cells; the edge of what the robot has seen is not."""
+    g = GridStack(1.0, 1.0, ("static",))
+    g.observe(Pose2D(0.5, 0.5, 0.0), np.array([9.0]), np.array([0.0]), 1e3, 0.1, 1e3)
+    s = np.full((10, 10), logit(0.02))
+    s[:, 9] = logit(0.98)  # a wall
+    s[:, 8] = 0.0  # the strip in front of it
+    s[:, :2] = 0.0  # the edge of the seen
+    rows, cols = np.divmod(np.arange(100), 10)
+    g.layers["static"][g.flat_cells(rows, cols)] = steps(s.reshape(-1))
+
+    def at(r: int, c: int) -> np.ndarray:
+        return g.flat_cells(np.array([r]), np.array([c]))
+
+    assert unknown_only_beside_walls(g, at(5, 6), 2, 0.1, 0.9)[0]
+    assert not unknown_only_beside_walls(g, at(5, 3), 2, 0.1, 0.9)[0]
 
 
 def _scan(r: float, t: float) -> Scan:

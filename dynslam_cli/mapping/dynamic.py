@@ -104,6 +104,28 @@ def classify_neighbourhood(grids: GridStack, cells: np.ndarray, radius: int, low
     return grids.classify_cells("static", cells, radius, logit(low), logit(high))
 
 
+def unknown_only_beside_walls(grids: GridStack, cells: np.ndarray, radius: int, low: float,
+                              high: float) -> np.ndarray:
+    """Whether every Unknown cell in the window of ``radius`` cells around each cell (flat
+    indices) touches an Occupied one: the strip in front of a wall that no beam passed (free
+    space stops a cell short of a hit), not the edge of what the robot has seen."""
+    rows, cols = grids.world_cells(cells)
+    span = np.arange(-radius - 1, radius + 2)
+    dr, dc = np.meshgrid(span, span, indexing="ij")
+    flat = grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
+    static = grids.layers["static"]
+    logodds = np.where(flat >= 0, static[np.maximum(flat, 0)], 0) * LOGODDS_STEP
+    occupied = logodds > logit(high)
+    unknown = (logodds >= logit(low)) & ~occupied
+    near = np.zeros_like(occupied)
+    for a in (-1, 0, 1):
+        for b in (-1, 0, 1):
+            near[:, 1:-1, 1:-1] |= occupied[:, 1 + a:occupied.shape[1] - 1 + a,
+                                            1 + b:occupied.shape[2] - 1 + b]
+    inner = (slice(None), slice(1, -1), slice(1, -1))
+    return ~(unknown[inner] & ~near[inner]).any(axis=(1, 2))
+
+
 def radius_cells(neighbourhood_m: float, resolution: float) -> int:
     return max(0, math.ceil(neighbourhood_m / resolution - 1e-9))
 
@@ -179,15 +201,22 @@ class DynamicMapper:
                         hit_prev: np.ndarray) -> np.ndarray:
         """``hit_prev``, but Free for a hit cell that S holds firmly Free (halfway in log-odds
         from the Free threshold to its floor) while the window around it says Occupied,
-        where most of its end points lie off the surfaces around it
-        (dynslam_cli.mapping.surfaces): something stands where the robot saw nothing,
-        next to a wall but not on it. Next to a place never seen the window's Unknown
-        stands (the paper's "static until seen to move")."""
+        or Unknown only for the strip in front of a wall that no beam passed
+        (:func:`unknown_only_beside_walls`), where most of its end points lie off the
+        surfaces around it (dynslam_cli.mapping.surfaces): something stands where the robot
+        saw nothing, next to a wall but not on it. Next to the edge of what the robot has
+        seen the window's Unknown stands (the paper's "static until seen to move")."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
-        firm = (logit(m.free_threshold) + logit(m.p_clamp_min)) / 2 / LOGODDS_STEP
+        firm = stored <= (logit(m.free_threshold) + logit(m.p_clamp_min)) / 2 / LOGODDS_STEP
+        doubt = firm & (hit_prev == OCCUPIED)
+        shadow = firm & (hit_prev == UNKNOWN)
+        if shadow.any():
+            shadow[shadow] = unknown_only_beside_walls(self.grids, obs.hit[shadow],
+                                                      self._radius, m.free_threshold,
+                                                      m.occupied_threshold)
         freed = self._surfaces.off_surfaces(
-            compose(pose, scan.laser), scan, obs, (hit_prev == OCCUPIED) & (stored <= firm),
+            compose(pose, scan.laser), scan, obs, doubt | shadow,
             stored > logit(m.occupied_threshold) / LOGODDS_STEP,
             logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()
