@@ -11,13 +11,12 @@ box turns static: "detected_static" counts those moves.
 ``[dynamic] surface_m`` (default 0: off; 0.03 finds 10/10 at every gap, with true odometry
 and with ``--drift 1``, where the local SLAM localizes the robot on a drifting odometry).
 A neighbourhood of 0 m, measured at 8974df9 (this bench, then ``bench/accuracy.py --modes
-S/D`` with the same value), finds 10/10
-moves at a 0.05 and a 0.10 m gap, but with true odometry D's precision falls from 1.00 to
-0.08 in the corridors world (0.23 arena, 0.13 hall, 0.51 crowd, 0.03 office) and the
-corridors report 359 false moving tracks: end points of walls fall a cell off them even
-with an exact pose. 0.05 m finds 2/10 and 3/10. So the neighbourhood cannot simply shrink
-where the pose is sure; what a wall's end points do cell by cell must be told from an
-object 5 cm in front of it another way (issue 39).
+S/D`` with the same value), finds 10/10 moves at a 0.05 and a 0.10 m gap, but with true
+odometry D's precision falls from 1.00 to 0.08 in the corridors world (0.23 arena, 0.13
+hall, 0.51 crowd, 0.03 office) and the corridors report 359 false moving tracks: end
+points of walls fall a cell off them even with an exact pose. 0.05 m finds 2/10 and 3/10.
+So the neighbourhood cannot simply shrink where the pose is sure; what a wall's end points
+do cell by cell must be told from an object 5 cm in front of it another way: the surfaces.
 """
 
 from __future__ import annotations
