@@ -13,6 +13,7 @@ the place is: a symmetric room or a row of identical offices scores alike in two
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -142,11 +143,9 @@ class Lattice:
     pose's cell, and the scoring of candidates (heading index, column, row of the robot's
     cell in the padded field) at a level of the pyramid."""
 
-    def __init__(self, field: MapField, points: np.ndarray,
-                 levels: list[np.ndarray] | None = None) -> None:
-        """``levels``: the pyramid scored (default: the field's own)."""
+    def __init__(self, field: MapField, points: np.ndarray) -> None:
         self.field = field
-        self.levels = field.levels if levels is None else levels
+        self.levels = field.levels  # the pyramid scored
         step = heading_step(points, field.resolution)
         n = max(1, math.ceil(2.0 * math.pi / step))
         self.thetas = np.arange(n) * (2.0 * math.pi / n)
@@ -156,6 +155,13 @@ class Lattice:
         y = s * points[None, :, 0] + c * points[None, :, 1]
         self.dc = np.ascontiguousarray(np.floor(x / res + 0.5), dtype=np.intp)
         self.dr = np.ascontiguousarray(np.floor(y / res + 0.5), dtype=np.intp)
+
+    def scoring(self, levels: list[np.ndarray]) -> Lattice:
+        """The same lattice scoring another pyramid of the field's shape (its turned end
+        points are not made again)."""
+        other = copy.copy(self)
+        other.levels = levels
+        return other
 
     def scores(self, level: int, th: np.ndarray, col: np.ndarray, row: np.ndarray
                ) -> np.ndarray:
@@ -225,7 +231,7 @@ def place(field: MapField, points: np.ndarray, min_score: float = 0.0,
     score, pose = best
     if likelier is not None:
         outlier, margin = likelier
-        lattice = Lattice(field, points, field.log_levels(outlier))
+        lattice = lattice.scoring(field.log_levels(outlier))
         floor = float(np.mean(log_likelihood(field.values(points, pose), outlier))) - margin
     else:
         floor = rival_share * score

@@ -114,9 +114,8 @@ def unknown_only_beside_walls(grids: GridStack, cells: np.ndarray, radius: int, 
     dr, dc = np.meshgrid(span, span, indexing="ij")
     flat = grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
     static = grids.layers["static"]
-    logodds = np.where(flat >= 0, static[np.maximum(flat, 0)], 0) * LOGODDS_STEP
-    occupied = logodds > logit(high)
-    unknown = (logodds >= logit(low)) & ~occupied
+    state = classify_static(np.where(flat >= 0, static[np.maximum(flat, 0)], 0), low, high)
+    occupied, unknown = state == OCCUPIED, state == UNKNOWN
     near = np.zeros_like(occupied)
     for a in (-1, 0, 1):
         for b in (-1, 0, 1):
@@ -208,6 +207,7 @@ class DynamicMapper:
         seen the window's Unknown stands (the paper's "static until seen to move")."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
+        own = classify_static(stored, m.free_threshold, m.occupied_threshold)
         firm = stored <= (logit(m.free_threshold) + logit(m.p_clamp_min)) / 2 / LOGODDS_STEP
         doubt = firm & (hit_prev == OCCUPIED)
         shadow = firm & (hit_prev == UNKNOWN)
@@ -216,8 +216,7 @@ class DynamicMapper:
                                                       self._radius, m.free_threshold,
                                                       m.occupied_threshold)
         freed = self._surfaces.off_surfaces(
-            compose(pose, scan.laser), scan, obs, doubt | shadow,
-            stored > logit(m.occupied_threshold) / LOGODDS_STEP,
+            compose(pose, scan.laser), scan, obs, doubt | shadow, own == OCCUPIED,
             logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()
         out[freed] = FREE

@@ -85,7 +85,7 @@ class Surfaces:
         fit[on_wall] = on_walls
         near = np.lib.stride_tricks.sliding_window_view(
             np.pad(fit, FIT_BEAMS, constant_values=np.nan), 2 * FIT_BEAMS + 1)[asked]
-        with np.errstate(all="ignore"), warnings.catch_warnings():
+        with warnings.catch_warnings():  # (a point with no wall beside it: NaN, all-NaN)
             warnings.simplefilter("ignore", RuntimeWarning)
             local = FIT_SPREADS * np.nanmedian(near, axis=1)
         tolerance = np.fmax(local, self.tolerance(np.concatenate((on_walls, off))))
