@@ -315,6 +315,17 @@ class CorrelativeConfig:
     0.0275, Intel 0.1115 / 0.0172 -> 0.1112 / 0.0171, FR079 0.0731 / 0.0702 -> 0.0746 /
     0.0721; perfect-odometry worlds with a 1% odometry model, pose graph off: crowd 0.0106
     -> 0.0047 m but hall 0.0314 -> 0.0409, the others the same. Not the default."""
+    fusion: str = "step"
+    """How a match and the wheel odometry are fused: "step", the match with the odometry's
+    increment from the last pose (``odometry``'s noise, the last pose taken as certain);
+    "filter", a Kalman filter of the pose about the local map: the last pose's
+    covariance carried on by each wheel increment with ``filter_odometry``'s noise, each
+    match fused with that (where the scan sees little, the odometry carries the pose on;
+    where it sees well, the matches of many scans are averaged)."""
+    filter_odometry: NoiseModel = field(default_factory=NoiseModel)
+    """The wheel odometry's noise per increment as the filter carries it (its range keys
+    are not used): what a robot's wheels do between two scans, not the slips that
+    ``odometry_glitch`` stands for."""
     window_sigmas: float = 3.0
     """The window spans this many of the odometry prior's standard deviations ..."""
     min_window_m: float = 0.1
@@ -343,6 +354,8 @@ class CorrelativeConfig:
              "match.correlative: 0 < min_window <= max_window (at most 5 m and 180 deg)"),
             (self.slip_test in ("refined", "search"),
              'match.correlative.slip_test must be "refined" or "search"'),
+            (self.fusion in ("step", "filter"),
+             'match.correlative.fusion must be "step" or "filter"'),
         ])
 
 

@@ -62,10 +62,12 @@ def test_a_corridors_covariance_is_long_along_it_and_keeps_the_odometry_there():
     assert abs(post.pose.y - moved.y) < 0.03  # across: the walls'
 
 
-def test_perfect_odometry_stays_perfect_along_a_featureless_corridor():
+@pytest.mark.parametrize("fusion", ["step", "filter"])
+def test_perfect_odometry_stays_perfect_along_a_featureless_corridor(fusion: str):
     """Driving 6 m down a corridor whose ends are out of range with exact odometry, the
     matched motion stays on the odometry: nothing the scan sees says otherwise."""
-    matcher = ScanMatcher(MatchConfig(method="correlative"), NoiseModel())
+    matcher = ScanMatcher(MatchConfig(method="correlative",
+                                      correlative=CorrelativeConfig(fusion=fusion)), NoiseModel())
     pose, estimate = Pose2D(), Pose2D()
     for k in range(120):
         true = Pose2D(0.05 * k, 0.2 * math.sin(k / 20), 0.05 * math.sin(k / 15))
@@ -76,6 +78,27 @@ def test_perfect_odometry_stays_perfect_along_a_featureless_corridor():
             assert source == "matched" and cov is not None
     err = relative(pose, estimate)
     assert math.hypot(err.x, err.y) < 0.02 and abs(err.theta) < math.radians(0.3)
+
+
+def test_the_filter_is_ever_less_sure_along_a_corridor_and_stays_sure_across_it():
+    """With fusion = "filter" the pose's uncertainty is carried from scan to scan: along a
+    corridor whose ends are out of range only the odometry moves the pose on, so its
+    uncertainty grows with every metre driven; across, the walls keep it at a few
+    millimetres."""
+    matcher = ScanMatcher(MatchConfig(method="correlative",
+                                      correlative=CorrelativeConfig(fusion="filter")),
+                          NoiseModel())
+    along = []
+    for k in range(100):
+        true = Pose2D(0.05 * k, 0.0, 0.0)
+        _, source, cov = matcher.increment(corridor_scan(true, true, 0.1 * k))
+        if k > 0:
+            assert source == "matched"
+            assert math.sqrt(cov[1, 1]) < 0.01  # across: the walls'
+            along.append(math.sqrt(cov[0, 0]))
+    assert along[-1] > 2 * along[10] > 0  # along: the odometry's, growing
+    # the wheel noise of 5 m driven (5% per metre, 2 mm a step), not the walls'
+    assert 0.02 < along[-1] < 0.3
 
 
 def test_matched_motion_corrects_a_drifting_odometry_in_a_room():
@@ -107,6 +130,8 @@ def test_the_method_is_a_config_switch_checked_at_load():
         load_config(overrides={"match": {"method": "ndt"}})
     with pytest.raises(ConfigError, match="outlier_share"):
         load_config(overrides={"match": {"correlative": {"outlier_share": 1.5}}})
+    with pytest.raises(ConfigError, match=r"correlative\.fusion"):
+        load_config(overrides={"match": {"correlative": {"fusion": "kalman"}}})
 
 
 def test_a_glitch_beyond_the_odometrys_window_is_found_by_widening_it():

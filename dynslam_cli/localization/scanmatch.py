@@ -129,31 +129,57 @@ def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> n
     return np.linalg.inv(information + np.diag([1.0 / max(s, 1e-6) ** 2 for s in prior_sigma]))
 
 
+def sigma_covariance(sigma: Sequence[float]) -> np.ndarray:
+    """The diagonal covariance of independent standard deviations (floored at 1e-6)."""
+    return np.diag([max(float(s), 1e-6) ** 2 for s in sigma])
+
+
 def pose_difference(a: Pose2D, b: Pose2D) -> np.ndarray:
     """a − b as (x, y, θ), the angle wrapped."""
     return np.array([a.x - b.x, a.y - b.y, math.remainder(a.theta - b.theta, math.tau)])
 
 
 def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
-               prior_sigma: Sequence[float], glitch: float | None
-               ) -> tuple[Pose2D, np.ndarray] | None:
+               prior_sigma: Sequence[float], glitch: float | None,
+               prior_cov: np.ndarray | None = None) -> tuple[Pose2D, np.ndarray] | None:
     """The match fused with the odometry's pose by their information, x_m + Σ Ω_o (x_o −
-    x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻², and Σ. Where the scan
-    constrains nothing (along a corridor) the odometry's value remains; where it
-    constrains everything, the match's. None where the odometry slipped: its prior is a
-    Gaussian with a floor of ``glitch`` times its peak (:func:`odometry_log_prior`), whose
+    x_m) with Σ = (Ω_m + Ω_o)⁻¹ and Ω_o = diag(``prior_sigma``)⁻² (or ``prior_cov``⁻¹
+    where the odometry pose's full covariance is known), and Σ. Where the scan constrains
+    nothing (along a corridor) the odometry's value remains; where it constrains
+    everything, the match's. None where the odometry slipped: its prior is a Gaussian
+    with a floor of ``glitch`` times its peak (:func:`odometry_log_prior`), whose
     posterior peaks at the match alone where the two disagree by more than
     χ² = 2 ln(1/glitch) under their combined covariance (Σ_o + Ω_m⁻¹)⁻¹ = Ω_m − Ω_m Σ Ω_m
     (no inverse of a match that leaves a direction free). ``glitch`` None: the odometry
     is known not to have slipped (the two are fused however far apart)."""
-    cov = fused_covariance(information, prior_sigma)
     d = pose_difference(odometry, match)
+    if prior_cov is None:
+        cov = fused_covariance(information, prior_sigma)
+        weighted = d / np.maximum(np.asarray(prior_sigma, dtype=float), 1e-6) ** 2
+    else:
+        prior_information = np.linalg.inv(prior_cov)
+        cov = np.linalg.inv(information + prior_information)
+        weighted = prior_information @ d
     if glitch is not None and float(
             d @ (information - information @ cov @ information) @ d) > 2.0 * math.log(
             1.0 / glitch):
         return None
-    step = cov @ (d / np.maximum(np.asarray(prior_sigma, dtype=float), 1e-6) ** 2)
+    step = cov @ weighted
     return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2]), cov
+
+
+def predicted_covariance(cov: np.ndarray, pose: Pose2D, wheel: Pose2D,
+                         wheel_sigma: Sequence[float]) -> np.ndarray:
+    """The covariance of ``pose`` (covariance ``cov``) moved on by the wheel increment
+    ``wheel`` (its robot frame; standard deviations ``wheel_sigma`` along x, y, θ):
+    J Σ Jᵀ + G Q Gᵀ, the Jacobians of compose(pose, wheel) in the pose and in the
+    increment."""
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    j = np.array([[1.0, 0.0, -s * wheel.x - c * wheel.y],
+                  [0.0, 1.0, c * wheel.x - s * wheel.y],
+                  [0.0, 0.0, 1.0]])
+    g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return j @ cov @ j.T + g @ sigma_covariance(wheel_sigma) @ g.T
 
 
 def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
@@ -254,6 +280,8 @@ class ScanMatcher:
         self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry)
         # the last scan whose match agreed with its wheel odometry: its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
+        # fusion "filter": the covariance of self._pose about the local map (matcher frame)
+        self._cov = np.zeros((3, 3))
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
         """Motion since the previous scan, in the previous robot frame, where it came from,
@@ -265,11 +293,14 @@ class ScanMatcher:
         raw = self._wheel.increment(scan.odom)
         wheel = self._calibration.correct(raw)
         guess = compose(self._pose, wheel)
+        predicted = self._predicted(wheel)
         pts = scan_points(scan, cfg.max_range_m, cfg.subsample)
         reference = self._map.reference
         pose, source, cov, agrees, measured = (
             Placed(guess, "odometry") if reference is None
-            else self._match(scan, pts, reference, guess, wheel))
+            else self._match(scan, pts, reference, guess, wheel, predicted))
+        if predicted is not None:
+            self._cov = predicted if cov is None else cov
         if agrees:
             self._anchor = (pose, scan.odom)
         inc = relative(self._pose, pose)
@@ -290,6 +321,16 @@ class ScanMatcher:
             self._key_pose = pose
         return inc, source, cov
 
+    def _predicted(self, wheel: Pose2D) -> np.ndarray | None:
+        """Fusion "filter": the covariance of the odometry's guess, the last pose's
+        covariance moved on by the wheel increment with the filter's odometry noise
+        (``filter_odometry``); else None (each match is fused with the increment alone)."""
+        correlative = self.cfg.correlative
+        if correlative.fusion != "filter":
+            return None
+        st, sr = motion_std(wheel.x, wheel.y, wheel.theta, correlative.filter_odometry)
+        return predicted_covariance(self._cov, self._pose, wheel, (st, st, sr))
+
     def _prior_sigma(self, scan: Scan, wheel: Pose2D) -> tuple[float, float, float]:
         """Standard deviations (x, y, θ) of the odometry's guess."""
         cfg = self.cfg
@@ -300,14 +341,15 @@ class ScanMatcher:
         return st, st, max(sr * cfg.prior_scale, math.radians(cfg.prior_floor_deg))
 
     def _match(self, scan: Scan, pts: np.ndarray, reference: PointIndex,
-               guess: Pose2D, wheel: Pose2D) -> Placed:
-        """The scan's points placed in the matcher's frame."""
+               guess: Pose2D, wheel: Pose2D, predicted: np.ndarray | None) -> Placed:
+        """The scan's points placed in the matcher's frame (``predicted``: the guess's full
+        covariance, where the filter carries it)."""
         if self.cfg.within_reach:
             seen = self._map.within_reach(transform_points(guess, pts), self.cfg.reach_margin_m)
             if np.count_nonzero(seen) >= MIN_POINTS:
                 pts = pts[seen]
         if self.cfg.method == "correlative" and scan.has_odometry:
-            return self._correlative(pts, reference, guess, wheel, scan.odom)
+            return self._correlative(pts, reference, guess, wheel, scan.odom, predicted)
         sigma = self._prior_sigma(scan, wheel)
         match = icp(reference, pts, guess, self.cfg, sigma)
         if self._good(match, pts, guess, sigma):
@@ -319,8 +361,8 @@ class ScanMatcher:
                               fused_covariance(recovered.information, sigma))
         return Placed(guess, "fallback")
 
-    def _correlative(self, pts: np.ndarray, reference: PointIndex,
-                     guess: Pose2D, wheel: Pose2D, odom: Pose2D) -> Placed:
+    def _correlative(self, pts: np.ndarray, reference: PointIndex, guess: Pose2D,
+                     wheel: Pose2D, odom: Pose2D, predicted: np.ndarray | None) -> Placed:
         """The correlative search's best pose around the odometry's guess (prior: the
         wheel odometry's noise model), refined by ICP within the search's own uncertainty.
         Its covariance: the refined match's information fused with the odometry's prior
@@ -357,7 +399,7 @@ class ScanMatcher:
         slipped_only_if_searched = agrees and cfg.correlative.slip_test == "search"
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
                             None if slipped_only_if_searched
-                            else cfg.correlative.odometry_glitch)
+                            else cfg.correlative.odometry_glitch, predicted)
                  if source == "matched" else None)
         if fused is not None:
             return Placed(fused[0], source, fused[1], agrees, refined.pose)
