@@ -250,6 +250,42 @@ def test_end_points_beyond_the_local_maps_reach_are_not_matched():
     assert math.hypot(err.x, err.y) < 0.05 and abs(err.theta) < math.radians(0.3)
 
 
+def test_a_walkers_trail_leaves_the_local_map_and_the_walls_stay():
+    """With clear_seen_through, a walker seen in one key scan and seen through from the next
+    (it walked on) leaves the local map; every end point on the room's walls stays, seen
+    from wherever the later key scans stand."""
+    from dynslam_cli.localization.scanmatch import LocalMap
+
+    from .test_loopclosure import ROOM
+
+    def points(pose: Pose2D, walker: tuple[float, float] | None) -> np.ndarray:
+        discs = np.array([[*walker, 0.25]]) if walker else np.zeros((0, 3))
+        r, _ = ray_cast(pose, ANGLES, ROOM, np.zeros(len(ROOM), int), discs,
+                        np.zeros(len(discs), int), 20.0)
+        return scan_points(Scan(0.0, r, ANGLES, 20.0, pose), 20.0)
+
+    def on_walls(p: np.ndarray) -> np.ndarray:
+        a, b = ROOM[:, :2], ROOM[:, 2:]
+        t = np.clip(((p[:, None] - a) * (b - a)).sum(-1) / ((b - a) ** 2).sum(-1), 0, 1)
+        return np.hypot(*(p[:, None] - (a + t[..., None] * (b - a))).transpose(2, 0, 1)
+                        ).min(1) < 0.02
+
+    walker = (3.5, -1.5)
+    poses = [Pose2D(0.0, 0.0, 0.0), Pose2D(0.5, 0.3, 0.2), Pose2D(1.0, -0.5, -0.3)]
+    for clear in (False, True):
+        local = LocalMap(MatchConfig(clear_seen_through=clear))
+        local.add(poses[0], points(poses[0], walker))
+        first = local.reference.points.copy()
+        for pose in poses[1:]:
+            local.add(pose, points(pose, None))
+        kept = local.reference.points
+        near_walker = np.hypot(kept[:, 0] - walker[0], kept[:, 1] - walker[1]) < 0.3
+        assert near_walker.any() != clear
+        wall_cells = {tuple(c) for c in np.round(first[on_walls(first)] / 0.05).astype(int)}
+        kept_cells = {tuple(c) for c in np.round(kept / 0.05).astype(int)}
+        assert wall_cells <= kept_cells
+
+
 def test_walls_between_far_end_points_are_sampled_but_not_across_an_edge():
     from dynslam_cli.localization.correlative import sampled_walls
 

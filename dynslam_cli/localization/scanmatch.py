@@ -190,6 +190,46 @@ def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
     return j @ cov @ j.T
 
 
+# A key scan's range view: the nearest end point in each bearing bin of this width ...
+VIEW_BIN_RAD = math.radians(1.0)
+SEEN_THROUGH_M = 0.1  # ... which an earlier key scan's end point must lie this far inside
+
+
+class RangeView(NamedTuple):
+    """What a key scan saw: its laser's position and the robot's heading (matcher frame),
+    and per bearing bin about the laser (robot frame, from −π) the nearest end point's
+    range in that bin and the two beside it (0 where one of them has none: a beam with no
+    return says nothing)."""
+
+    x: float
+    y: float
+    heading: float
+    nearest: np.ndarray
+
+
+def range_view(pose: Pose2D, origin: tuple[float, float], points: np.ndarray) -> RangeView:
+    """The range view of end points (robot frame) seen from ``pose`` by a laser at
+    ``origin`` (robot frame)."""
+    n = math.ceil(math.tau / VIEW_BIN_RAD)
+    d = points - np.asarray(origin)
+    bins = np.floor((np.arctan2(d[:, 1], d[:, 0]) + math.pi) / VIEW_BIN_RAD).astype(int) % n
+    nearest = np.full(n, np.inf)
+    np.minimum.at(nearest, bins, np.hypot(d[:, 0], d[:, 1]))
+    nearest[np.isinf(nearest)] = 0.0
+    nearest = np.minimum(nearest, np.minimum(np.roll(nearest, 1), np.roll(nearest, -1)))
+    at = transform_points(pose, np.array([origin], dtype=float))[0]
+    return RangeView(float(at[0]), float(at[1]), pose.theta, nearest)
+
+
+def seen_through(view: RangeView, points: np.ndarray) -> np.ndarray:
+    """Which points (N×2, matcher frame) lie more than SEEN_THROUGH_M inside what the view
+    saw in their direction: where its beams passed, nothing stands."""
+    dx, dy = points[:, 0] - view.x, points[:, 1] - view.y
+    n = len(view.nearest)
+    bins = np.floor((np.arctan2(dy, dx) - view.heading + math.pi) / VIEW_BIN_RAD).astype(int) % n
+    return np.hypot(dx, dy) < view.nearest[bins] - SEEN_THROUGH_M
+
+
 class LocalMap:
     """The last ``local_map_scans`` key scans' points in the matcher's frame, thinned to one
     point per ``local_map_cell_m`` square, indexed for ICP with their normals (the spread
@@ -206,9 +246,12 @@ class LocalMap:
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._stale = 0  # key scans added to the field since it was made anew
 
-    def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf) -> None:
+    def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf,
+            origin: tuple[float, float] = (0.0, 0.0)) -> None:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame) by a laser
-        whose end points reach ``reach`` metres."""
+        at ``origin`` (robot frame) whose end points reach ``reach`` metres."""
+        if self._cfg.clear_seen_through and self._keys:
+            self._clear(range_view(pose, origin, points))
         self._keys.append(transform_points(pose, points))
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
@@ -222,6 +265,15 @@ class LocalMap:
             return
         self.reference = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)],
                                     neighbours=self._cfg.normal_neighbours)
+
+    def _clear(self, view: RangeView) -> None:
+        """Takes the key scans' points and walls that ``view`` saw through out of them (the
+        lookup table keeps them until it is made anew)."""
+        for keys in (self._keys, self._walls):
+            for k, pts in enumerate(keys):
+                passed = seen_through(view, pts)
+                if passed.any():
+                    keys[k] = pts[~passed]
 
     def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
         """Which points (N×2, matcher frame) lie within a key scan's reach, less
@@ -317,7 +369,7 @@ class ScanMatcher:
         if key is None or moved_far(key, pose, cfg.key_distance_m,
                                     math.radians(cfg.key_angle_deg)):
             self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m),
-                          min(cfg.max_range_m, scan.max_range))
+                          min(cfg.max_range_m, scan.max_range), (scan.laser.x, scan.laser.y))
             self._key_pose = pose
         return inc, source, cov
 
