@@ -16,13 +16,12 @@ from __future__ import annotations
 from array import array
 from collections import Counter
 from collections.abc import Callable, Iterable
-from typing import Protocol
 
 import numpy as np
 
 from dynslam_cli.config import Config
 from dynslam_cli.localization.cornerslam import CornerSlam
-from dynslam_cli.localization.frontend import Measurement, ScanMeasurer, match_counts
+from dynslam_cli.localization.frontend import MeasuredScans, ScanMeasurer, match_counts
 from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.mapping.dynamic import DynamicMapper
 from dynslam_cli.mapping.grid import GridStack
@@ -30,12 +29,6 @@ from dynslam_cli.prior import PriorSession
 from dynslam_cli.result import Landmark, SlamResult, landmarks_of
 from dynslam_cli.scanstore import ScanStore, remap
 from dynslam_cli.types import Pose2D, Scan
-
-
-class MeasuredScans(Protocol):
-    """Scans measured already (a front end that reads ahead): the last one's measurement."""
-
-    def measurement(self, scan: Scan) -> Measurement: ...
 
 
 class DynamicSlam:
@@ -181,10 +174,9 @@ class DynamicSlam:
         mapper = self.mapper if mapper is None else mapper
         if self._slam is None:
             return []
-        corners = self._slam.landmark_map(self._loops.scan_correction
-                                          if self._loops is not None and self._count else None)
-        places = np.array([[x, y] for _, _, _, x, y, _ in corners]).reshape(-1, 2)
-        return landmarks_of(corners, mapper.classify_landmarks(places))
+        return landmarks_of(self._slam.landmark_map(
+            self._loops.scan_correction if self._loops is not None and self._count else None),
+            mapper.classify_landmarks)
 
 
 def run(scans: Iterable[Scan], config: Config,

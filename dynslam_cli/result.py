@@ -3,6 +3,7 @@ trajectory, the change events and the counts for the summary."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -60,9 +61,11 @@ class SlamResult:
 
 
 def landmarks_of(corners: list[tuple[int, bool, int, float, float, np.ndarray]],
-                 classes: list[str]) -> list[Landmark]:
+                 classify: Callable[[np.ndarray], list[str]]) -> list[Landmark]:
     """The landmark map's rows from the corners (id, convex, observations, x, y, 2×2
-    covariance; map frame) and their classes by Table 3."""
+    covariance; map frame), each classed by Table 3 (``classify``: the classes of N×2
+    places)."""
+    classes = classify(np.array([[x, y] for _, _, _, x, y, _ in corners]).reshape(-1, 2))
     return [Landmark(i, x, y, "convex" if convex else "concave", c, seen,
                      float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1]))
             for (i, convex, seen, x, y, cov), c in zip(corners, classes, strict=True)]

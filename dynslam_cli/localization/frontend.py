@@ -11,7 +11,7 @@ ahead of them in another process (dynslam_cli.readahead).
 from __future__ import annotations
 
 from collections import Counter
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -52,6 +52,12 @@ class Measurement(NamedTuple):
 
     motion: Motion
     corners: list[tuple[np.ndarray, bool]]
+
+
+class MeasuredScans(Protocol):
+    """Scans measured already (a front end that reads ahead): the last one's measurement."""
+
+    def measurement(self, scan: Scan) -> Measurement: ...
 
 
 class ScanMeasurer:
