@@ -400,6 +400,30 @@ def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
     assert ratio < 2 * len(pts[::12]) / cfg.effective_pairs
 
 
+def test_a_prior_weighed_as_the_pairs_holds_against_a_few_stray_pairs():
+    """Along a long wall only a short stub constrains the match, and ten end points of a
+    walker just beside it pair with it. A guess 2 cm sure of itself, weighed against every
+    pair, is dragged 0.1 m and more toward the stray pairs' pose; with ``prior_as_pairs``
+    it weighs against the 400 wall pairs as they count in the information (100) and
+    holds."""
+    from dynslam_cli.localization._match import PointIndex
+    from dynslam_cli.localization.scanmatch import icp
+
+    wall = np.column_stack((np.linspace(-8.0, 8.0, 400), np.full(400, 1.0)))
+    stub = np.column_stack((np.full(12, 2.0), np.linspace(0.45, 0.95, 12)))
+    walker = np.column_stack((np.full(10, 2.15), np.linspace(0.5, 0.9, 10)))
+    slides = {}
+    for as_pairs in (False, True):
+        cfg = MatchConfig(prior_as_pairs=as_pairs)
+        ref = PointIndex(np.vstack((wall, stub)), neighbours=cfg.normal_neighbours)
+        match = icp(ref, np.vstack((wall, walker)), Pose2D(), cfg, (0.02, 0.02, 0.01))
+        print(as_pairs, match.pose)
+        assert abs(match.pose.y) < 0.005  # across the wall: pinned either way
+        slides[as_pairs] = -match.pose.x
+    assert slides[False] > 0.1  # the walker, paired with the stub, drags the match
+    assert abs(slides[True]) < 0.005
+
+
 def test_how_far_a_match_may_stray_from_the_odometry_follows_the_stated_slip_rate():
     """The odometry's prior is a Gaussian with a floor (its slips): a match 5σ off it
     (χ² 25) is the odometry slipping where slips are one in a thousand, and fused with it

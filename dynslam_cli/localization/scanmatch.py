@@ -102,7 +102,8 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: MatchConfig,
     they converge there (the pose is then the narrow gate's, without its outliers).
     ``prior_sigma`` (x, y, θ standard deviations of the guess) adds the guess as a prior,
     so directions the scene does not constrain (along a corridor, in open space) stay at
-    the odometry's value instead of sliding. Fewer than 10 pairs: the guess, share 0,
+    the odometry's value instead of sliding (``cfg.prior_as_pairs``: weighed against the
+    pairs as they count in the information). Fewer than 10 pairs: the guess, share 0,
     RMS ∞ and no information.
 
     The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M) counted as
@@ -113,6 +114,8 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: MatchConfig,
     if prior_sigma is not None:  # information of the guess, in residual units
         ratios = [RESIDUAL_SIGMA_M / max(float(s), 1e-6) for s in prior_sigma]
         prior = [r * r for r in ratios]
+        if cfg.prior_as_pairs:  # (the pairs count as effective_pairs in the information)
+            prior = [p * max(len(pts) / cfg.effective_pairs, 1.0) for p in prior]
     x, y, th, share, rms, ok, h = _match.icp(
         ref, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
