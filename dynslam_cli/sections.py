@@ -106,9 +106,16 @@ class LaserConfig:
     scan 0.56% too wide, its edges half a degree out, and doubles the local SLAM's error
     (relations 0.251 m, 0.128 m at 1 degree)."""
 
+    scan_latency_s: float = 0.0
+    """How much older a scan's content is than its stamp and its odometry pose (seconds):
+    each scan's odometry is taken this much earlier, between the scan before's and its
+    own. A laser's scans reach the logger after the sweep and the transfer (a SICK LMS at
+    38.4 kbaud: 94 ms), while the logger reads the odometry at arrival."""
+
     def geometry(self) -> dict[str, float | None]:
         """The reader options this section sets (dynslam_formats.ReaderOptions fields)."""
-        return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg}
+        return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg,
+                "scan_latency_s": self.scan_latency_s}
 
     def limit(self, scan: Scan) -> Scan:
         """The scan with ``max_range_m`` as its max range where set, so every consumer
@@ -126,6 +133,7 @@ class LaserConfig:
              "laser.fov_deg must be in (0, 360]"),
             (self.beam_step_deg is None or 0 < self.beam_step_deg <= 360,
              "laser.beam_step_deg must be in (0, 360]"),
+            (0 <= self.scan_latency_s <= 1, "laser.scan_latency_s must be in [0, 1] s"),
         ])
 
 

@@ -27,6 +27,9 @@ class ReaderOptions:
     """Field of view for records that carry no beam angles (old Carmen FLASER)."""
     beam_step_deg: float | None = None
     """The angle between two beams (degrees) instead of the log's; the first beam stays."""
+    scan_latency_s: float = 0.0
+    """How much older a scan's content is than its stamp (and its odometry pose): its
+    odometry is taken this much earlier, between the scan's and the one before's."""
     start_s: float | None = None
     """Part of a log: leave out scans earlier than this, in seconds after the first scan."""
     end_s: float | None = None

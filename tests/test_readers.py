@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from importlib.metadata import EntryPoint
 from pathlib import Path
 
@@ -78,6 +79,35 @@ def test_beam_step_spreads_every_formats_beams_from_the_first(simulated, cli, fm
         source.close()
     np.testing.assert_allclose(np.diff(scan.angles), np.radians(0.5), atol=1e-6)
     assert scan.angles[0] == pytest.approx(-np.pi / 2, abs=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["carmen", "rosbag1"])
+def test_scan_latency_takes_each_scans_odometry_that_much_earlier(simulated, fmt):
+    """A laser whose scans reach the log 30 ms after they were seen: each scan's odometry is
+    read 30 ms before its stamp, between the scan before's and its own (the first scan's
+    as it is); the stamps, the beams and the number of scans stay."""
+    from dynslam_cli.geometry import interpolate
+    from dynslam_formats import ReaderOptions, open_log
+
+    def scans(options):
+        source, _, reader = open_log(simulated[fmt], options)
+        try:
+            return list(reader.scans())
+        finally:
+            source.close()
+
+    plain, late = scans(ReaderOptions()), scans(ReaderOptions(scan_latency_s=0.03))
+    assert [s.stamp for s in late] == [s.stamp for s in plain]
+    assert late[0].odom == plain[0].odom
+    for before, scan, shifted in zip(plain, plain[1:], late[1:], strict=False):
+        np.testing.assert_array_equal(shifted.ranges, scan.ranges)
+        f = 1 - 0.03 / (scan.stamp - before.stamp)  # 0.7 of the way at 10 scans a second
+        want = interpolate(before.odom, scan.odom, f)
+        assert (shifted.odom.x, shifted.odom.y) == pytest.approx((want.x, want.y), abs=1e-9)
+        assert shifted.odom.theta == pytest.approx(want.theta, abs=1e-9)
+    moved = [math.hypot(a.odom.x - b.odom.x, a.odom.y - b.odom.y)
+             for a, b in zip(late, plain, strict=True)]
+    assert max(moved) > 0.005  # the robot moves: a real shift, not the same poses
 
 
 def test_player_stage_log(datasets, cli, tmp_path):
