@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from dynslam_cli.geometry import compose, relative
+from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization.correlative import (
     CorrelativeConfig,
     log_field,
@@ -253,16 +253,17 @@ def test_end_points_beyond_the_local_maps_reach_are_not_matched():
 def test_a_walkers_trail_leaves_the_local_map_and_the_walls_stay():
     """With clear_seen_through, a walker seen in one key scan and seen through from the next
     (it walked on) leaves the local map; every end point on the room's walls stays, seen
-    from wherever the later key scans stand."""
-    from dynslam_cli.localization.scanmatch import LocalMap
+    from wherever the later key scans stand. A beam with no return saw free space as far
+    as the laser reaches: a walker seen against a far wall is cleared by it too."""
+    from dynslam_cli.localization.scanmatch import LocalMap, range_view
 
     from .test_loopclosure import ROOM
 
-    def points(pose: Pose2D, walker: tuple[float, float] | None) -> np.ndarray:
+    def scan(pose: Pose2D, walker: tuple[float, float] | None, reach: float) -> Scan:
         discs = np.array([[*walker, 0.25]]) if walker else np.zeros((0, 3))
         r, _ = ray_cast(pose, ANGLES, ROOM, np.zeros(len(ROOM), int), discs,
-                        np.zeros(len(discs), int), 20.0)
-        return scan_points(Scan(0.0, r, ANGLES, 20.0, pose), 20.0)
+                        np.zeros(len(discs), int), reach)
+        return Scan(0.0, r, ANGLES, reach, pose)
 
     def on_walls(p: np.ndarray) -> np.ndarray:
         a, b = ROOM[:, :2], ROOM[:, 2:]
@@ -272,15 +273,17 @@ def test_a_walkers_trail_leaves_the_local_map_and_the_walls_stay():
 
     walker = (3.5, -1.5)
     poses = [Pose2D(0.0, 0.0, 0.0), Pose2D(0.5, 0.3, 0.2), Pose2D(1.0, -0.5, -0.3)]
-    for clear in (False, True):
+    # 20 m: every beam returns; 4.5 m: the walls beyond the walker are out of reach
+    for clear, reach in ((False, 20.0), (True, 20.0), (True, 4.5)):
         local = LocalMap(MatchConfig(clear_seen_through=clear))
-        local.add(poses[0], points(poses[0], walker))
-        first = local.reference.points.copy()
-        for pose in poses[1:]:
-            local.add(pose, points(pose, None))
+        for k, pose in enumerate(poses):
+            seen = scan(pose, walker if k == 0 else None, reach)
+            local.add(pose, scan_points(seen, reach), reach, range_view(pose, seen, reach))
+            if k == 0:
+                first = local.reference.points.copy()
         kept = local.reference.points
         near_walker = np.hypot(kept[:, 0] - walker[0], kept[:, 1] - walker[1]) < 0.3
-        assert near_walker.any() != clear
+        assert near_walker.any() != clear, (clear, reach)
         wall_cells = {tuple(c) for c in np.round(first[on_walls(first)] / 0.05).astype(int)}
         kept_cells = {tuple(c) for c in np.round(kept / 0.05).astype(int)}
         assert wall_cells <= kept_cells
@@ -323,6 +326,38 @@ def test_a_walker_in_the_scan_does_not_pull_the_match():
         estimate = compose(estimate, inc)
         err = relative(true, estimate)
         assert math.hypot(err.x, err.y) < 0.015 and abs(err.theta) < math.radians(0.3), k
+
+
+def test_a_walker_where_the_key_scans_saw_the_floor_is_seen_free_and_the_walls_are_not():
+    """``skip_seen_free``'s test: five key scans of the room from along the robot's path,
+    then a scan with a walker in it. The walker's end points lie where every key scan's
+    beams went on to the wall behind (or, beyond the laser's reach, returned nothing): seen
+    through by at least ``seen_free_views`` of them. Not one end point on the room's walls
+    is."""
+    from dynslam_cli.localization.scanmatch import LocalMap, range_view
+
+    from .test_loopclosure import ROOM
+
+    def scan(pose: Pose2D, walker: tuple[float, float] | None, reach: float) -> Scan:
+        discs = np.array([[*walker, 0.25]]) if walker else np.zeros((0, 3))
+        r, _ = ray_cast(pose, ANGLES, ROOM, np.zeros(len(ROOM), int), discs,
+                        np.zeros(len(discs), int), reach)
+        return Scan(0.0, r, ANGLES, reach, pose)
+
+    walker = (2.0, -1.0)
+    for reach in (20.0, 4.5):  # 4.5 m: the wall behind the walker is out of reach
+        cfg = MatchConfig(skip_seen_free=True)
+        local = LocalMap(cfg)
+        for k in range(5):
+            pose = Pose2D(0.4 * k - 1.0, 1.0 + 0.1 * k, 0.05 * k)
+            seen = scan(pose, None, reach)
+            local.add(pose, scan_points(seen, reach), reach, range_view(pose, seen, reach))
+        now = Pose2D(1.0, 1.0, -0.6)
+        pts = transform_points(now, scan_points(scan(now, walker, reach), reach))
+        free = local.seen_free(pts, cfg.seen_free_views)
+        on_walker = np.hypot(pts[:, 0] - walker[0], pts[:, 1] - walker[1]) < 0.3
+        assert on_walker.sum() >= 5 and free[on_walker].all(), reach
+        assert not free[~on_walker].any(), reach
 
 
 def test_the_odometrys_noise_is_learned_from_the_log():

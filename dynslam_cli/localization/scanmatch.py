@@ -200,9 +200,9 @@ SEEN_THROUGH_M = 0.1  # ... which an earlier key scan's end point must lie this 
 
 class RangeView(NamedTuple):
     """What a key scan saw: its laser's position and the robot's heading (matcher frame),
-    and per bearing bin about the laser (robot frame, from −π) the nearest end point's
-    range in that bin and the two beside it (0 where one of them has none: a beam with no
-    return says nothing)."""
+    and per bearing bin about the laser (robot frame, from −π) the shortest beam's range in
+    that bin and the two beside it (a beam with no return: the laser's reach; 0 where one
+    of them holds no beam: nothing seen there)."""
 
     x: float
     y: float
@@ -210,17 +210,21 @@ class RangeView(NamedTuple):
     nearest: np.ndarray
 
 
-def range_view(pose: Pose2D, origin: tuple[float, float], points: np.ndarray) -> RangeView:
-    """The range view of end points (robot frame) seen from ``pose`` by a laser at
-    ``origin`` (robot frame)."""
+def range_view(pose: Pose2D, scan: Scan, reach: float) -> RangeView:
+    """The range view of a scan seen from ``pose``, its beams with no return (or beyond
+    ``reach``) free as far as ``reach``."""
+    laser = scan.laser
     n = math.ceil(math.tau / VIEW_BIN_RAD)
-    d = points - np.asarray(origin)
-    bins = np.floor((np.arctan2(d[:, 1], d[:, 0]) + math.pi) / VIEW_BIN_RAD).astype(int) % n
+    r = np.asarray(scan.ranges, dtype=np.float64)
+    seen = np.isfinite(r) & (r > 0.05)
+    bearing = np.remainder(np.asarray(scan.angles, dtype=np.float64)[seen] + laser.theta
+                           + math.pi, math.tau)
     nearest = np.full(n, np.inf)
-    np.minimum.at(nearest, bins, np.hypot(d[:, 0], d[:, 1]))
+    np.minimum.at(nearest, np.floor(bearing / VIEW_BIN_RAD).astype(int) % n,
+                  np.minimum(r[seen], reach))
     nearest[np.isinf(nearest)] = 0.0
     nearest = np.minimum(nearest, np.minimum(np.roll(nearest, 1), np.roll(nearest, -1)))
-    at = transform_points(pose, np.array([origin], dtype=float))[0]
+    at = transform_points(pose, np.array([[laser.x, laser.y]]))[0]
     return RangeView(float(at[0]), float(at[1]), pose.theta, nearest)
 
 
@@ -248,13 +252,17 @@ class LocalMap:
         self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._stale = 0  # key scans added to the field since it was made anew
+        self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
 
     def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf,
-            origin: tuple[float, float] = (0.0, 0.0)) -> None:
+            view: RangeView | None = None) -> None:
         """A key scan's points (robot frame) seen from ``pose`` (matcher frame) by a laser
-        at ``origin`` (robot frame) whose end points reach ``reach`` metres."""
-        if self._cfg.clear_seen_through and self._keys:
-            self._clear(range_view(pose, origin, points))
+        whose end points reach ``reach`` metres (``view``: its range view, where the local
+        map clears what it saw through)."""
+        if view is not None:
+            if self._cfg.clear_seen_through and self._keys:
+                self._clear(view)
+            self._views.append(view)
         self._keys.append(transform_points(pose, points))
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
@@ -277,6 +285,14 @@ class LocalMap:
                 passed = seen_through(view, pts)
                 if passed.any():
                     keys[k] = pts[~passed]
+
+    def seen_free(self, points: np.ndarray, views: int) -> np.ndarray:
+        """Which points (N×2, matcher frame) at least ``views`` key scans of the local map
+        saw through (:func:`seen_through`): where nothing stood when they looked."""
+        passed = np.zeros(len(points), dtype=np.int64)
+        for view in self._views:
+            passed += seen_through(view, points)
+        return passed >= views
 
     def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
         """Which points (N×2, matcher frame) lie within a key scan's reach, less
@@ -371,8 +387,10 @@ class ScanMatcher:
         key = self._key_pose
         if key is None or moved_far(key, pose, cfg.key_distance_m,
                                     math.radians(cfg.key_angle_deg)):
+            reach = min(cfg.max_range_m, scan.max_range)
             self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m),
-                          min(cfg.max_range_m, scan.max_range), (scan.laser.x, scan.laser.y))
+                          reach, range_view(pose, scan, reach)
+                          if cfg.clear_seen_through or cfg.skip_seen_free else None)
             self._key_pose = pose
         return inc, source, cov
 
@@ -446,6 +464,11 @@ class ScanMatcher:
                                                           cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers:
             return Placed(guess, "fallback", agrees=False)
+        if cfg.skip_seen_free:  # (where the search placed the scan)
+            standing = ~self._map.seen_free(transform_points(post.pose, pts),
+                                            cfg.seen_free_views)
+            if np.count_nonzero(standing) >= MIN_POINTS:
+                pts = pts[standing]
         refined = icp(reference, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
