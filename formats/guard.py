@@ -240,12 +240,12 @@ class ScanLatency(ReaderFilter):
     def scans(self) -> Iterator[Scan]:
         before: Scan | None = None
         for scan in self.reader.scans():
-            dt = scan.stamp - before.stamp if before is not None else 0.0
-            if before is None or dt <= 0 or not (scan.has_odometry and before.has_odometry):
-                yield scan
-            else:
-                f = max(1.0 - self.latency_s / dt, 0.0)
+            if (before is not None and scan.stamp > before.stamp and scan.has_odometry
+                    and before.has_odometry):
+                f = max(1.0 - self.latency_s / (scan.stamp - before.stamp), 0.0)
                 yield dataclasses.replace(scan, odom=interpolate(before.odom, scan.odom, f))
+            else:
+                yield scan
             before = scan
 
 

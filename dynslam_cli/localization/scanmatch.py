@@ -23,7 +23,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from dynslam_cli.geometry import compose, moved_far, relative, transform_points
+from dynslam_cli.geometry import (
+    compose,
+    compound_covariance,
+    moved_far,
+    relative,
+    transform_points,
+)
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
@@ -171,20 +177,6 @@ def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
     return Pose2D(match.x + step[0], match.y + step[1], match.theta + step[2]), cov
 
 
-def predicted_covariance(cov: np.ndarray, pose: Pose2D, wheel: Pose2D,
-                         wheel_sigma: Sequence[float]) -> np.ndarray:
-    """The covariance of ``pose`` (covariance ``cov``) moved on by the wheel increment
-    ``wheel`` (its robot frame; standard deviations ``wheel_sigma`` along x, y, θ):
-    J Σ Jᵀ + G Q Gᵀ, the Jacobians of compose(pose, wheel) in the pose and in the
-    increment."""
-    c, s = math.cos(pose.theta), math.sin(pose.theta)
-    j = np.array([[1.0, 0.0, -s * wheel.x - c * wheel.y],
-                  [0.0, 1.0, c * wheel.x - s * wheel.y],
-                  [0.0, 0.0, 1.0]])
-    g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return j @ cov @ j.T + g @ sigma_covariance(wheel_sigma) @ g.T
-
-
 def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
     """A pose covariance (matcher frame) as the covariance of the increment from
     ``previous``, in the previous robot frame (its rotation undone)."""
@@ -195,6 +187,7 @@ def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
 
 # A key scan's range view: the nearest end point in each bearing bin of this width ...
 VIEW_BIN_RAD = math.radians(1.0)
+VIEW_BINS = math.ceil(math.tau / VIEW_BIN_RAD)
 SEEN_THROUGH_M = 0.1  # ... which an earlier key scan's end point must lie this far inside
 
 
@@ -214,26 +207,27 @@ def range_view(pose: Pose2D, scan: Scan, reach: float) -> RangeView:
     """The range view of a scan seen from ``pose``, its beams with no return (or beyond
     ``reach``) free as far as ``reach``."""
     laser = scan.laser
-    n = math.ceil(math.tau / VIEW_BIN_RAD)
     r = np.asarray(scan.ranges, dtype=np.float64)
     seen = np.isfinite(r) & (r > 0.05)
-    bearing = np.remainder(np.asarray(scan.angles, dtype=np.float64)[seen] + laser.theta
-                           + math.pi, math.tau)
-    nearest = np.full(n, np.inf)
-    np.minimum.at(nearest, np.floor(bearing / VIEW_BIN_RAD).astype(int) % n,
-                  np.minimum(r[seen], reach))
+    nearest = np.full(VIEW_BINS, np.inf)
+    np.minimum.at(nearest, bearing_bins(np.asarray(scan.angles, dtype=np.float64)[seen]
+                                        + laser.theta), np.minimum(r[seen], reach))
     nearest[np.isinf(nearest)] = 0.0
     nearest = np.minimum(nearest, np.minimum(np.roll(nearest, 1), np.roll(nearest, -1)))
     at = transform_points(pose, np.array([[laser.x, laser.y]]))[0]
     return RangeView(float(at[0]), float(at[1]), pose.theta, nearest)
 
 
+def bearing_bins(bearing: np.ndarray) -> np.ndarray:
+    """The range view's bin of each bearing (radians, robot frame)."""
+    return np.floor((bearing + math.pi) / VIEW_BIN_RAD).astype(int) % VIEW_BINS
+
+
 def seen_through(view: RangeView, points: np.ndarray) -> np.ndarray:
     """Which points (N×2, matcher frame) lie more than SEEN_THROUGH_M inside what the view
     saw in their direction: where its beams passed, nothing stands."""
     dx, dy = points[:, 0] - view.x, points[:, 1] - view.y
-    n = len(view.nearest)
-    bins = np.floor((np.arctan2(dy, dx) - view.heading + math.pi) / VIEW_BIN_RAD).astype(int) % n
+    bins = bearing_bins(np.arctan2(dy, dx) - view.heading)
     return np.hypot(dx, dy) < view.nearest[bins] - SEEN_THROUGH_M
 
 
@@ -289,10 +283,13 @@ class LocalMap:
     def seen_free(self, points: np.ndarray, views: int) -> np.ndarray:
         """Which points (N×2, matcher frame) at least ``views`` key scans of the local map
         saw through (:func:`seen_through`): where nothing stood when they looked."""
-        passed = np.zeros(len(points), dtype=np.int64)
-        for view in self._views:
-            passed += seen_through(view, points)
-        return passed >= views
+        if len(self._views) < views:
+            return np.zeros(len(points), dtype=bool)
+        x, y, heading, nearest = (np.array(v) for v in zip(*self._views, strict=True))
+        dx, dy = points[None, :, 0] - x[:, None], points[None, :, 1] - y[:, None]
+        bins = bearing_bins(np.arctan2(dy, dx) - heading[:, None])
+        passed = np.hypot(dx, dy) < np.take_along_axis(nearest, bins, 1) - SEEN_THROUGH_M
+        return np.count_nonzero(passed, axis=0) >= views
 
     def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
         """Which points (N×2, matcher frame) lie within a key scan's reach, less
@@ -402,7 +399,8 @@ class ScanMatcher:
         if correlative.fusion != "filter":
             return None
         st, sr = motion_std(wheel.x, wheel.y, wheel.theta, correlative.filter_odometry)
-        return predicted_covariance(self._cov, self._pose, wheel, (st, st, sr))
+        return compound_covariance(self._pose, self._cov, wheel,
+                                   sigma_covariance((st, st, sr)))
 
     def _prior_sigma(self, scan: Scan, wheel: Pose2D) -> tuple[float, float, float]:
         """Standard deviations (x, y, θ) of the odometry's guess."""
