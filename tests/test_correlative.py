@@ -148,6 +148,35 @@ def test_a_glitch_beyond_the_odometrys_window_is_found_by_widening_it():
     assert abs(post.pose.theta - true.theta) < math.radians(0.6)
 
 
+def test_a_false_jump_is_undone_by_the_next_scan_and_a_slip_is_kept():
+    """Scan 12's first 220 beams the laser took 20° further round (a glitched scan: at the
+    odometry's pose little fits, turned by 20° more of it): the search turns it 20°, and
+    with ``confirm_jumps`` scan 13, searched from the odometry since scan 11 as well, undoes
+    the jump. The odometry's slip of 15° at scan 20, where the scan fits well, is followed
+    (scan 21, searched from the odometry before the slip as well, fits better after it)."""
+    from .test_loopclosure import scan_at
+
+    matcher = ScanMatcher(MatchConfig(confirm_jumps=True), NoiseModel())
+    estimate = Pose2D()
+    for k in range(30):
+        true = Pose2D(0.05 * k, 0.02 * k, math.radians(1.0 * k))
+        odom = Pose2D(true.x, true.y, true.theta + (math.radians(15.0) if k >= 20 else 0.0))
+        scan = scan_at(true, odom, 0.1 * k)
+        if k == 12:
+            turned = scan_at(Pose2D(true.x, true.y, true.theta + math.radians(20.0)), odom)
+            ranges = np.array(scan.ranges)
+            ranges[:220] = np.asarray(turned.ranges)[:220]
+            scan = Scan(scan.stamp, ranges, ANGLES, scan.max_range, odom)
+        inc, source, _ = matcher.increment(scan)
+        estimate = compose(estimate, inc)
+        err = relative(true, estimate)
+        turn = math.radians(20.0) if k == 12 else 0.0
+        assert math.hypot(err.x, err.y) < (0.1 if k == 12 else 0.03), k
+        assert abs(err.theta - turn) < math.radians(0.5), k
+        if k == 13:
+            assert source == "recovered"  # (the jump undone)
+
+
 def test_stale_odometry_then_its_jump_is_matched_to_the_true_motion():
     """The odometry stops updating for five scans while the robot turns, then reports the
     whole turn at once (MIT CSAIL's log does this): the turn is matched scan by scan, and

@@ -452,7 +452,8 @@ class ScanMatcher:
         post = search(field, searched, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
         source = "matched"
         agrees = not _outside(post.pose, guess, (st, st, sr), cfg.correlative.window_sigmas)
-        if post.score < cfg.min_inliers or not agrees:
+        if post.score < cfg.min_inliers or not agrees or (cfg.confirm_jumps
+                                                          and self._jumped()):
             for retry_guess, sigma, is_anchored in self._retry_guesses(odom, (st, st, sr)):
                 retry = search(field, searched, retry_guess, sigma, cfg.correlative,
                                cfg.min_inliers)
@@ -482,6 +483,10 @@ class ScanMatcher:
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
 
+    def _jumped(self) -> bool:
+        """Whether the scan before was placed against its wheel odometry."""
+        return self._anchor is not None and self._anchor[0] != self._pose
+
     def _retry_guesses(self, odom: Pose2D, sigma: tuple[float, float, float]
                        ) -> list[tuple[Pose2D, tuple[float, float, float], bool]]:
         """Where the odometry's guess does not explain the scan, the guesses tried next, each
@@ -492,7 +497,7 @@ class ScanMatcher:
         its content from another moment than its odometry, as a log sorted by lying stamps
         has it)."""
         guesses = [(compose(self._pose, self._last_increment), sigma, False)]
-        if self._anchor is not None and self._anchor[0] != self._pose:
+        if self._jumped():
             anchor_pose, anchor_odom = self._anchor
             since = relative(anchor_odom, odom)
             st, sr = self._odometry.std(since, self.cfg.correlative.odometry)
