@@ -453,12 +453,12 @@ class MatchConfig:
     (``clear_seen_through``'s test, a beam with no return free as far as the laser
     reaches): a walker where the wall behind was seen, a box brought in. The paper's own
     idea, that what stands where the map saw free space is not the map (Table 2), used
-    for the match. Off: with the pose graph off, the perfect-odometry worlds (seeds 0, 1,
-    2; geometric mean of the 15 ATEs 0.0319 -> 0.0215 m, the worst 0.90 -> 0.127: the
-    hall of seed 2, where a walker beside the robot's path dragged every match 3.5 cm,
-    0.90 -> 0.025) and the real logs' relations (five perturbed copies, medians MIT
-    0.0630 -> 0.0545, Intel 0.1295 -> 0.0966) gain, but FR079 loses (0.0822 -> 0.1141):
-    not yet the default."""
+    for the match. Off (see ``confirm_jumps`` for the two together; alone it lost FR079
+    to one glitched scan). With the pose graph off, the perfect-odometry worlds (seeds 0, 1, 2;
+    geometric mean of the 15 ATEs 0.0319 -> 0.0215 m, the worst 0.90 -> 0.127: the hall of
+    seed 2, where a walker beside the robot's path dragged every match 3.5 cm, 0.90 ->
+    0.025); five perturbed copies of the real logs, medians MIT 0.0630 -> 0.0545, Intel
+    0.1295 -> 0.0966, FR079 0.0822 -> 0.1141."""
     confirm_jumps: bool = False
     """After a scan placed against its wheel odometry (the correlative search's pose beyond
     the odometry's window: a slip, a glitch, or a scan that fits nowhere well and far off
@@ -469,7 +469,15 @@ class MatchConfig:
     copies of five). Pose graph off, five perturbed copies, medians: with
     ``skip_seen_free`` MIT 0.0545 -> 0.0619, Intel 0.0966 -> 0.0997, FR079 0.1141 -> 0.0796
     (spread 56% -> 6%); alone MIT 0.0630 -> 0.0573, Intel 0.1295 -> 0.1464, FR079 0.0822 ->
-    0.0755."""
+    0.0755. The two together, against the two off, five copies each,
+    local MIT 0.0630 -> 0.0619, Intel 0.1295 -> 0.0997, FR079 0.0822 -> 0.0796, full
+    MIT 0.0270 -> 0.0277, Intel 0.0156 -> 0.0154, FR079 0.0652 -> 0.0648; the
+    perfect-odometry worlds' 15 runs 0.0319 -> 0.0229 m with the pose graph off (worst
+    0.904 -> 0.199), 0.0118 -> 0.0083 with it on; the Radish rows even (geometric mean of
+    the ratios 0.99; 27 of 39 at or below the better of Karto and GMapping, 25 before).
+    Not yet the default: with both on, a second session of the hall reports a wall's face
+    one cell thinner than the first's as a removed object (``[changes] min_area_m2``'s
+    0.02 m² exactly), where the two off do not."""
     seen_free_views: int = 4
     """... seen through by at least this many key scans (the real logs' own walls give no
     return now and then: one view drops a fifth of MIT CSAIL's end points, four 3%)."""

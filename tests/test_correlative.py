@@ -389,6 +389,23 @@ def test_a_walker_where_the_key_scans_saw_the_floor_is_seen_free_and_the_walls_a
         assert not free[~on_walker].any(), reach
 
 
+def test_a_beam_with_no_return_is_free_to_the_reach_however_the_log_writes_it():
+    """A log writes a beam with no return at its max range (Carmen) or as +inf (a ROS
+    LaserScan, our own recording): the range view is the same; a dropped beam (NaN) says
+    nothing."""
+    from dynslam_cli.localization.scanmatch import range_view
+
+    ranges = np.full(len(ANGLES), 3.0)
+    ranges[100:140] = 8.0  # the laser's max range: no return
+    at_max = Scan(0.0, ranges, ANGLES, 8.0, Pose2D())
+    as_inf = Scan(0.0, np.where(ranges >= 8.0, np.inf, ranges), ANGLES, 8.0, Pose2D())
+    views = [range_view(Pose2D(0.5, 0.2, 0.3), s, 6.0).nearest for s in (at_max, as_inf)]
+    np.testing.assert_array_equal(*views)
+    assert views[0].max() == 6.0
+    dropped = Scan(0.0, np.where(ranges >= 8.0, np.nan, ranges), ANGLES, 8.0, Pose2D())
+    assert range_view(Pose2D(), dropped, 6.0).nearest.max() == 3.0
+
+
 def test_the_odometrys_noise_is_learned_from_the_log():
     """Increments that match the odometry to a millimetre teach a tenth of the model's
     noise; increments 2.5 times the model's noise off teach 2.5 times the noise."""

@@ -208,7 +208,7 @@ def range_view(pose: Pose2D, scan: Scan, reach: float) -> RangeView:
     ``reach``) free as far as ``reach``."""
     laser = scan.laser
     r = np.asarray(scan.ranges, dtype=np.float64)
-    seen = np.isfinite(r) & (r > 0.05)
+    seen = r > 0.05  # (a dropped beam is NaN; one with no return may be +inf or max range)
     nearest = np.full(VIEW_BINS, np.inf)
     np.minimum.at(nearest, bearing_bins(np.asarray(scan.angles, dtype=np.float64)[seen]
                                         + laser.theta), np.minimum(r[seen], reach))
