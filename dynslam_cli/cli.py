@@ -87,7 +87,9 @@ reader_options = _options(  # how to read a log: process, batch (every log), inf
                       "rule."),
     click.option("--beam-step", type=float, metavar="DEG",
                  help="The angle between two beams (degrees) where the log states it wrong "
-                      "(a converter's fov/(n-1) for a laser's fov/n); the first beam stays."),
+                      "(a converter's fov/(n-1) for a laser's fov/n); the first beam stays. "
+                      "Without it, beams that look spread so are checked against the scans "
+                      "([laser] check_beam_step)."),
 )
 
 run_options = _options(  # what to compute and which part of the log: process, batch

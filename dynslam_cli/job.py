@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import os
 import statistics
 import sys
@@ -18,8 +19,16 @@ from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from dynslam_cli import __version__
 from dynslam_cli.config import Config
+from dynslam_cli.localization.beams import (
+    CHECK_SCANS,
+    SpacingCheck,
+    check_spacing,
+    converter_spacing,
+)
 from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, run
@@ -78,6 +87,11 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             prior.place(first_reader.scans())
         finally:
             first_source.close()
+    spacing = None
+    if log != "-" and options.beam_step_deg is None and config.laser.check_beam_step:
+        spacing = checked_spacing(log, options, format_name, config, on_phase)
+        if spacing is not None and spacing.convincing:
+            options = dataclasses.replace(options, beam_step_deg=math.degrees(spacing.own))
     elsewhere = (recording_destination(config.record.file, target) if config.record.file
                  else None)
     source, entry, reader = open_log(log, options, format_name)
@@ -113,6 +127,12 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             source.close()
             if recording is not None:
                 recording.close()
+        if spacing is not None and spacing.convincing:
+            front.stats.warn(
+                f"beams read {math.degrees(spacing.own):.5g} deg apart, not the "
+                f"{math.degrees(spacing.stated):.5g} the log states (a converter's fov/(n-1)):"
+                f" {spacing.better} of {spacing.matched} of its first scans fit the local map"
+                " better so (--beam-step sets the spacing)")
         stamps = result.trajectory[:, 0]
         timeless = clock_stopped(stamps)
         if timeless:
@@ -123,7 +143,8 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
         summary = {
             "tool": {"name": "dynslam", "version": __version__},
             "input": {"path": source.name, "format": entry.name, **settings["input"],
-                      "options": settings["options"]},
+                      "options": settings["options"],
+                      "beam_spacing": None if spacing is None else spacing.to_dict()},
             "snapshots_s": settings["snapshots_s"],
             "reader": front.stats.to_dict(),
             "scans_processed": len(stamps),
@@ -228,6 +249,29 @@ def _read_table(path: Path, read: Callable[[Any], Any]) -> Any:
             return read(f)
     except (OSError, KeyError, ValueError) as e:
         raise InputError(str(path), f"cannot read: {e}") from None
+
+
+def checked_spacing(log: str, options: Any, format_name: str | None, config: Config,
+                    on_phase: Callable[[str, int, int], None] | None = None
+                    ) -> SpacingCheck | None:
+    """The log's first scans, read apart, matched at their stated spacing and at their
+    laser's own where they look spread by a converter (dynslam_cli.localization.beams;
+    ``on_phase`` is told when they do)."""
+    from dynslam_formats import open_log
+
+    source, _, reader = open_log(log, options, format_name)
+    try:
+        scans = reader.scans()
+        first = next(scans, None)
+        if first is None or converter_spacing(np.asarray(first.angles)) is None:
+            return None  # (read no further)
+        if on_phase is not None:
+            on_phase("checking the spacing of the beams", 0, 0)
+        first_scans = [config.laser.limit(s)
+                       for s in itertools.chain([first], itertools.islice(scans, CHECK_SCANS - 1))]
+    finally:
+        source.close()
+    return check_spacing(first_scans, config.match, config.ekf.noise)
 
 
 def run_settings(log: str, options: Any, config: Config, format_name: str | None,

@@ -105,6 +105,13 @@ class LaserConfig:
     says 180/179 degrees for its SICK's 1 (as the Carmen log has them), which spreads every
     scan 0.56% too wide, its edges half a degree out, and doubles the local SLAM's error
     (relations 0.251 m, 0.128 m at 1 degree)."""
+    check_beam_step: bool = True
+    """Where ``beam_step_deg`` is not set and a log's beams look spread by such a converter
+    (an even count spanning a whole number of quarter turns), match its first scans at the
+    laser's own spacing, fov/n, as well, and read the log at it where they fit it better
+    in two scans of three (dynslam_cli.localization.beams; a warning says so, and
+    summary.json's ``input.beam_spacing`` holds the check). Not for a log read from
+    standard input."""
 
     scan_latency_s: float = 0.0
     """How much older a scan's content is than its stamp and its odometry pose (seconds):

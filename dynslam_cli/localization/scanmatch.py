@@ -350,6 +350,9 @@ class ScanMatcher:
         self._anchor: tuple[Pose2D, Pose2D] | None = None
         # fusion "filter": the covariance of self._pose about the local map (matcher frame)
         self._cov = np.zeros((3, 3))
+        self.fit_rms: float | None = None
+        """The last scan's refined match: its rms distance to the local map (m); None where
+        it was not refined (no match, or the search's pose stood)."""
 
     def increment(self, scan: Scan) -> tuple[Pose2D, str, np.ndarray | None]:
         """Motion since the previous scan, in the previous robot frame, where it came from,
@@ -358,6 +361,7 @@ class ScanMatcher:
         "fallback" (no good match: the wheel odometry's) or "odometry" (no local map to
         match against)."""
         cfg = self.cfg
+        self.fit_rms = None
         raw = self._wheel.increment(scan.odom)
         wheel = self._calibration.correct(raw)
         guess = compose(self._pose, wheel)
@@ -424,6 +428,7 @@ class ScanMatcher:
         sigma = self._prior_sigma(scan, wheel)
         match = icp(reference, pts, guess, self.cfg, sigma)
         if self._good(match, pts, guess, sigma):
+            self.fit_rms = match.rms
             return Placed(match.pose, "matched", fused_covariance(match.information, sigma))
         if scan.has_odometry:  # odometry glitches (a doubled turn)
             recovered = self._recover(reference, pts, guess, wheel, sigma)
@@ -473,6 +478,7 @@ class ScanMatcher:
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return Placed(post.pose, source, post.cov, agrees)
+        self.fit_rms = refined.rms
         slipped_only_if_searched = agrees and cfg.correlative.slip_test == "search"
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
                             None if slipped_only_if_searched
