@@ -79,6 +79,11 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     from dynslam_formats.tum import clock_stopped
 
     start = time.perf_counter()
+    spacing = None
+    if log != "-" and options.beam_step_deg is None and config.laser.check_beam_step:
+        spacing = checked_spacing(log, options, format_name, config, on_phase)
+        if spacing is not None and spacing.convincing:
+            options = dataclasses.replace(options, beam_step_deg=math.degrees(spacing.own))
     if prior is not None and log != "-":  # placed from the log's first scans, read apart
         if on_phase is not None:
             on_phase("placing the log in the prior map", 0, 0)
@@ -87,11 +92,6 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             prior.place(first_reader.scans())
         finally:
             first_source.close()
-    spacing = None
-    if log != "-" and options.beam_step_deg is None and config.laser.check_beam_step:
-        spacing = checked_spacing(log, options, format_name, config, on_phase)
-        if spacing is not None and spacing.convincing:
-            options = dataclasses.replace(options, beam_step_deg=math.degrees(spacing.own))
     elsewhere = (recording_destination(config.record.file, target) if config.record.file
                  else None)
     source, entry, reader = open_log(log, options, format_name)
