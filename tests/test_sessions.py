@@ -54,8 +54,20 @@ def test_between_sessions_three_fixtures_change_and_the_robot_starts_elsewhere()
     assert world.relocations == 0
 
 
+WALL_FACES = """[match]
+skip_seen_free = true
+confirm_jumps = true
+[changes]
+skip_wall_faces = true
+"""
+
+
+@pytest.mark.parametrize("config", ["", WALL_FACES])
 def test_two_sessions_the_second_placed_in_the_first_and_its_changes_found(tmp_path: Path,
-                                                                            cli) -> None:
+                                                                            cli, config) -> None:
+    """The defaults; and the local SLAM's two switches, whose second session's pose thins
+    one wall of the first session's map by a cell (8 cells, a third "removed" object
+    without ``skip_wall_faces``)."""
     made = cli("simulate", "hall", "-o", tmp_path / "sim", "--sessions", "2", "--duration",
                "150")
     assert made.exit_code == 0, made.output
@@ -63,8 +75,11 @@ def test_two_sessions_the_second_placed_in_the_first_and_its_changes_found(tmp_p
     truth = json.loads((second.parent / "truth.json").read_text())
     assert truth["session"] == 2 and len(truth["prior_changes"]) == 3
     assert truth["odometry"][0][1:] == [0.0, 0.0, 0.0]  # its own frame, a day later
-    assert cli("process", first, "-o", tmp_path / "day1", "-q").exit_code == 0
-    run = cli("process", second, "-o", tmp_path / "day2", "-q", "--prior", tmp_path / "day1")
+    (tmp_path / "c.toml").write_text(config)
+    options = ("-q", "--config", tmp_path / "c.toml")
+    assert cli("process", first, "-o", tmp_path / "day1", *options).exit_code == 0
+    run = cli("process", second, "-o", tmp_path / "day2", *options, "--prior",
+              tmp_path / "day1")
     assert run.exit_code == 0, run.output
     report = json.loads(cli("evaluate", tmp_path / "day2", "--truth",
                             second.parent / "truth.json", "--json").stdout)

@@ -72,6 +72,7 @@ class ChangeRecorder:
         self.config = config
         self.grids = grids
         self._occupied = int(steps(logit(m.occupied_threshold)))
+        self.occupied_logodds = logit(m.occupied_threshold)
         self.free_limit = int(steps(logit(m.free_threshold)))
         clamp, miss = int(steps(logit(m.p_clamp_max))), int(steps(logit(m.p_miss)))
         self.passes_to_leave = math.ceil((clamp - self._occupied) / -miss)
@@ -561,6 +562,9 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     if not gone.any():
         return []
     rows, cols = grids.world_cells(unique[gone])
+    beside_wall = (grids.classify_cells("static", unique[gone], 1, -math.inf,
+                                        recorder.occupied_logodds) == 2
+                   if config.skip_wall_faces else np.zeros(len(rows), bool))
     res = grids.resolution
     groups = _neighbour_groups(np.column_stack((rows, cols)) * res, config.merge_distance_m)
     first_crossed = np.full(len(unique), np.iinfo(np.int64).max)
@@ -575,8 +579,8 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     for g in range(groups.max() + 1):
         members = groups == g
         area = float(members.sum()) * res * res
-        if area < config.min_area_m2:
-            continue
+        if area < config.min_area_m2 or beside_wall[members].all():
+            continue  # (too small, or a wall's face: see ChangeConfig.skip_wall_faces)
         seen = np.unique(scans[record_group == g])
         x, y = (cols[members].mean() + 0.5) * res, (rows[members].mean() + 0.5) * res
         # seen gone from when half its cells had been crossed
