@@ -128,11 +128,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             if recording is not None:
                 recording.close()
         if spacing is not None and spacing.convincing:
-            front.stats.warn(
-                f"beams read {math.degrees(spacing.own):.5g} deg apart, not the "
-                f"{math.degrees(spacing.stated):.5g} the log states (a converter's fov/(n-1)):"
-                f" {spacing.better} of {spacing.matched} of its first scans fit the local map"
-                " better so (--beam-step sets the spacing)")
+            front.stats.warn(spacing.notice())
         stamps = result.trajectory[:, 0]
         timeless = clock_stopped(stamps)
         if timeless:

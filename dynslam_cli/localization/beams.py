@@ -52,6 +52,13 @@ class SpacingCheck(NamedTuple):
     def convincing(self) -> bool:
         return self.matched >= MIN_MATCHED and self.better >= BETTER_SHARE * self.matched
 
+    def notice(self) -> str:
+        """What a user is told when the log is read at the laser's own spacing."""
+        return (f"beams read {math.degrees(self.own):.5g} deg apart, not the "
+                f"{math.degrees(self.stated):.5g} the log states (a converter's fov/(n-1)): "
+                f"{self.better} of {self.matched} of its first scans fit the local map better "
+                "so (--beam-step sets the spacing)")
+
     def to_dict(self) -> dict[str, float | int | bool]:
         """As summary.json's ``input.beam_spacing`` holds it (degrees)."""
         return {"stated_deg": math.degrees(self.stated), "own_deg": math.degrees(self.own),
