@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -48,3 +48,8 @@ class Scan:
     """Time between two beams (seconds) where the log says it (LaserScan); else None."""
     scan_time: float | None = None
     """Time between two sweeps (seconds) where the log says it (LaserScan); else None."""
+
+    def respaced(self, step: float) -> Scan:
+        """The scan with its beams ``step`` radians apart from the first (which stays)."""
+        return replace(self, angles=self.angles[:1] + step * np.arange(len(self.angles),
+                                                                      dtype=np.float64))

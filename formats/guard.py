@@ -222,8 +222,7 @@ class BeamStep(ReaderFilter):
 
     def scans(self) -> Iterator[Scan]:
         for scan in self.reader.scans():
-            steps = np.arange(len(scan.angles), dtype=np.float64)
-            yield dataclasses.replace(scan, angles=scan.angles[:1] + self.step * steps)
+            yield scan.respaced(self.step)
 
 
 class ScanLatency(ReaderFilter):

@@ -12,7 +12,6 @@ import pytest
 from dynslam_cli.localization.beams import (
     check_spacing,
     converter_spacing,
-    respaced,
 )
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.scanmatch import MatchConfig
@@ -52,7 +51,7 @@ def test_a_converters_spacing_is_found_and_a_true_one_is_kept():
     fit 1 deg better in most scans. A laser whose 180 beams really are 180/179 deg apart
     (both ends of its fov) looks the same in the log, and its scans fit that better."""
     cfg, noise = MatchConfig(), NoiseModel()
-    converted = [respaced(s, math.pi / 179) for s in drive(1.0)]
+    converted = [s.respaced(math.pi / 179) for s in drive(1.0)]
     check = check_spacing(converted, cfg, noise)
     assert check is not None and check.convincing
     assert math.degrees(check.own) == pytest.approx(1.0)
@@ -78,7 +77,7 @@ def test_the_intel_bag_is_read_at_its_lasers_own_spacing(datasets, cli, tmp_path
 
 def test_respaced_keeps_the_first_beam():
     scan = drive(1.0, scans=1)[0]
-    moved = respaced(scan, math.radians(0.5))
+    moved = scan.respaced(math.radians(0.5))
     assert moved.angles[0] == scan.angles[0]
     assert math.degrees(moved.angles[-1] - moved.angles[0]) == pytest.approx(89.5)
     assert moved.ranges is scan.ranges and moved.odom == scan.odom

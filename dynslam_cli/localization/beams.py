@@ -14,7 +14,6 @@ fit the local map better in most of them.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -82,11 +81,6 @@ def converter_spacing(angles: np.ndarray) -> tuple[float, float] | None:
     return step, span / n
 
 
-def respaced(scan: Scan, step: float) -> Scan:
-    """The scan with its beams ``step`` radians apart from the first."""
-    return dataclasses.replace(scan, angles=scan.angles[0] + step * np.arange(len(scan.angles)))
-
-
 def match_errors(scans: Sequence[Scan], cfg: MatchConfig, noise: NoiseModel) -> np.ndarray:
     """Each scan's rms distance (m) to the local map where its match was refined, in a
     front end run over ``scans`` alone (NaN where it was not)."""
@@ -113,7 +107,7 @@ def check_spacing(scans: Sequence[Scan], cfg: MatchConfig, noise: NoiseModel
         return None
     stated, own = spacing
     base = match_errors(scans, cfg, noise)
-    errors = match_errors([respaced(s, own) for s in scans], cfg, noise)
+    errors = match_errors([s.respaced(own) for s in scans], cfg, noise)
     both = np.isfinite(base) & np.isfinite(errors) & (base != errors)
     return SpacingCheck(stated, own, int(np.count_nonzero(errors[both] < base[both])),
                         int(both.sum()))

@@ -247,6 +247,8 @@ class LocalMap:
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._stale = 0  # key scans added to the field since it was made anew
         self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
+        self._stacked: tuple[np.ndarray, ...] | None = None  # the views as arrays (x, y,
+        # heading, nearest), made when first asked after a key scan
 
     def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf,
             view: RangeView | None = None) -> None:
@@ -257,6 +259,7 @@ class LocalMap:
             if self._cfg.clear_seen_through and self._keys:
                 self._clear(view)
             self._views.append(view)
+            self._stacked = None
         self._keys.append(transform_points(pose, points))
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
@@ -285,7 +288,9 @@ class LocalMap:
         saw through (:func:`seen_through`): where nothing stood when they looked."""
         if len(self._views) < views:
             return np.zeros(len(points), dtype=bool)
-        x, y, heading, nearest = (np.array(v) for v in zip(*self._views, strict=True))
+        if self._stacked is None:
+            self._stacked = tuple(np.array(v) for v in zip(*self._views, strict=True))
+        x, y, heading, nearest = self._stacked
         dx, dy = points[None, :, 0] - x[:, None], points[None, :, 1] - y[:, None]
         bins = bearing_bins(np.arctan2(dy, dx) - heading[:, None])
         passed = np.hypot(dx, dy) < np.take_along_axis(nearest, bins, 1) - SEEN_THROUGH_M

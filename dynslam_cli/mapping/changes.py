@@ -71,8 +71,8 @@ class ChangeRecorder:
     def __init__(self, config: ChangeConfig, m: MapConfig, grids: GridStack) -> None:
         self.config = config
         self.grids = grids
-        self._occupied = int(steps(logit(m.occupied_threshold)))
         self.occupied_logodds = logit(m.occupied_threshold)
+        self._occupied = int(steps(self.occupied_logodds))
         self.free_limit = int(steps(logit(m.free_threshold)))
         clamp, miss = int(steps(logit(m.p_clamp_max))), int(steps(logit(m.p_miss)))
         self.passes_to_leave = math.ceil((clamp - self._occupied) / -miss)
