@@ -175,8 +175,8 @@ class DynamicSlam:
         if self._slam is None:
             return []
         return landmarks_of(self._slam.landmark_map(
-            self._loops.scan_correction if self._loops is not None and self._count else None),
-            mapper.classify_landmarks)
+            self._loops.scan_correction if self._loops is not None and self._count else None,
+            self.config.map.resolution_m), mapper.classify_landmarks)
 
 
 def run(scans: Iterable[Scan], config: Config,

@@ -195,6 +195,22 @@ def test_a_corner_confirmed_twice_is_one_row_of_the_landmark_map():
     assert fused[0, 0] == pytest.approx(0.02 ** 2 / 5)
 
 
+def test_two_sure_corners_closer_than_a_map_cell_are_one_row():
+    """The end of a partition one cell thick has two corners, each seen so often that
+    their covariances keep them apart; the map draws one: closer than ``resolve_m`` they
+    are one row (another kind, or a cell and more away, stay apart)."""
+    from dynslam_cli.localization.cornerslam import one_per_corner
+
+    cov = np.diag([0.005 ** 2, 0.005 ** 2])
+    xy = np.array([[1.0, 2.0], [1.0, 2.048], [1.0, 2.048], [1.0, 2.11]])
+    landmarks = [(1, True, 40), (2, True, 30), (3, False, 20), (4, True, 25)]
+    apart = one_per_corner(landmarks, xy, np.array([cov] * 4), 9.21)
+    assert [i for i, *_ in apart] == [1, 2, 3, 4]
+    rows = one_per_corner(landmarks, xy, np.array([cov] * 4), 9.21, resolve_m=0.05)
+    assert [(i, seen) for i, _, seen, *_ in rows] == [(1, 70), (3, 20), (4, 25)]
+    assert rows[0][4] == pytest.approx(2.024)
+
+
 def test_conditioning_on_the_robot_keeps_the_landmarks_relative_uncertainty():
     """Ekf.condition_on_robot: the means stay, the robot's covariance is 0, a landmark's is
     its covariance given the robot's pose (the inverse of its block of the information

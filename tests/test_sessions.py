@@ -54,20 +54,19 @@ def test_between_sessions_three_fixtures_change_and_the_robot_starts_elsewhere()
     assert world.relocations == 0
 
 
-WALL_FACES = """[match]
-skip_seen_free = true
-confirm_jumps = true
-[changes]
-skip_wall_faces = true
+EARLIER_FRONT_END = """[match]
+skip_seen_free = false
+confirm_jumps = false
 """
 
 
-@pytest.mark.parametrize("config", ["", WALL_FACES])
+@pytest.mark.parametrize("config", ["", EARLIER_FRONT_END])
 def test_two_sessions_the_second_placed_in_the_first_and_its_changes_found(tmp_path: Path,
                                                                             cli, config) -> None:
-    """The defaults; and the local SLAM's two switches, whose second session's pose thins
-    one wall of the first session's map by a cell (8 cells, a third "removed" object
-    without ``skip_wall_faces``)."""
+    """The defaults, whose second session's pose thins one wall of the first session's map
+    by a cell (8 cells, a third "removed" object without ``[changes] skip_wall_faces``);
+    and the local SLAM without ``skip_seen_free`` and ``confirm_jumps`` (the default before
+    stop 54)."""
     made = cli("simulate", "hall", "-o", tmp_path / "sim", "--sessions", "2", "--duration",
                "150")
     assert made.exit_code == 0, made.output

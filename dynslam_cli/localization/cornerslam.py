@@ -247,12 +247,14 @@ class CornerSlam:
                                       self.ekf.cov[j:j + 2, j:j + 2].copy()))
         return out
 
-    def landmark_map(self, correction: Callable[[int], Pose2D] | None = None
+    def landmark_map(self, correction: Callable[[int], Pose2D] | None = None,
+                     resolve_m: float = 0.0
                      ) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
         """Every landmark confirmed (those let go of included), one per corner
-        (:func:`one_per_corner`): (id, convex, observations, x, y, 2×2 covariance), each
-        moved by ``correction`` (a scan number → the correction of this filter's frame at
-        that scan, the pose graph's; None: none) at the scan it was last seen."""
+        (:func:`one_per_corner`, corners closer than ``resolve_m`` one): (id, convex,
+        observations, x, y, 2×2 covariance), each moved by ``correction`` (a scan number →
+        the correction of this filter's frame at that scan, the pose graph's; None: none) at
+        the scan it was last seen."""
         records = self.landmark_records()
         if not records:
             return []
@@ -270,7 +272,7 @@ class CornerSlam:
             rot = np.array([[c, -s], [s, c]])
             covs.append(rot @ r.cov @ rot.T)
         return one_per_corner([(r.id, r.convex, r.observations) for r in records], xy,
-                              np.array(covs), self.config.gate_chi2)
+                              np.array(covs), self.config.gate_chi2, resolve_m)
 
     def landmark_positions(self) -> np.ndarray:
         return self.ekf.x[3:].reshape(-1, 2)
@@ -296,13 +298,16 @@ class _Corner:
 
 
 def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs: np.ndarray,
-                   gate_chi2: float) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
+                   gate_chi2: float, resolve_m: float = 0.0
+                   ) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
     """The landmark map with one row per corner: a landmark the EKF let go of and confirmed
     anew when the robot came back is the same corner twice. Landmarks (id, convex,
     observations) of the same kind whose positions ``xy`` agree within their combined
-    covariance (``covs``, N×2×2; the association gate ``gate_chi2``, χ² 2 dof) are one:
-    the first id, the observations summed, the positions fused by their information.
-    In order of id; returns (id, convex, observations, x, y, covariance)."""
+    covariance (``covs``, N×2×2; the association gate ``gate_chi2``, χ² 2 dof), or lie
+    closer than ``resolve_m`` (the map's cell: the end of a partition one cell thick has
+    two corners that S draws as one), are one: the first id, the observations summed, the
+    positions fused by their information. In order of id; returns (id, convex,
+    observations, x, y, covariance)."""
     corners: list[_Corner] = []
     for k in np.argsort([i for i, _, _ in landmarks], kind="stable"):
         ident, convex, seen = landmarks[k]
@@ -313,7 +318,8 @@ def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs:
             d = xy[k] - c.xy
             both = c.cov + covs[k]
             # (d²/trace bounds the Mahalanobis distance from below: far corners skip solve)
-            if (float(d @ d) <= gate_chi2 * float(np.trace(both))
+            if float(d @ d) < resolve_m * resolve_m or (
+                    float(d @ d) <= gate_chi2 * float(np.trace(both))
                     and float(d @ np.linalg.solve(both, d)) < gate_chi2):
                 corners[n] = _Corner(c.id, convex, c.seen + seen, c.info + info,
                                      c.weighted + info @ xy[k])
