@@ -148,15 +148,18 @@ def test_a_glitch_beyond_the_odometrys_window_is_found_by_widening_it():
     assert abs(post.pose.theta - true.theta) < math.radians(0.6)
 
 
-def test_a_false_jump_is_undone_by_the_next_scan_and_a_slip_is_kept():
+@pytest.mark.parametrize("thin_to", ["first", "mean"])
+def test_a_false_jump_is_undone_by_the_next_scan_and_a_slip_is_kept(thin_to):
     """Scan 12's first 220 beams the laser took 20° further round (a glitched scan: at the
     odometry's pose little fits, turned by 20° more of it): the search turns it 20°, and
     with ``confirm_jumps`` scan 13, searched from the odometry since scan 11 as well, undoes
     the jump. The odometry's slip of 15° at scan 20, where the scan fits well, is followed
-    (scan 21, searched from the odometry before the slip as well, fits better after it)."""
+    (scan 21, searched from the odometry before the slip as well, fits better after it).
+    (With a local map of means, scan 13 already fits right from the jumped pose: the
+    glitched key scan's points are averaged with the right ones.)"""
     from .test_loopclosure import scan_at
 
-    matcher = ScanMatcher(MatchConfig(confirm_jumps=True), NoiseModel())
+    matcher = ScanMatcher(MatchConfig(confirm_jumps=True, thin_to=thin_to), NoiseModel())
     estimate = Pose2D()
     for k in range(30):
         true = Pose2D(0.05 * k, 0.02 * k, math.radians(1.0 * k))
@@ -173,7 +176,7 @@ def test_a_false_jump_is_undone_by_the_next_scan_and_a_slip_is_kept():
         turn = math.radians(20.0) if k == 12 else 0.0
         assert math.hypot(err.x, err.y) < (0.1 if k == 12 else 0.03), k
         assert abs(err.theta - turn) < math.radians(0.5), k
-        if k == 13:
+        if k == 13 and thin_to == "first":
             assert source == "recovered"  # (the jump undone)
 
 
@@ -313,9 +316,10 @@ def test_a_walkers_trail_leaves_the_local_map_and_the_walls_stay():
         kept = local.reference.points
         near_walker = np.hypot(kept[:, 0] - walker[0], kept[:, 1] - walker[1]) < 0.3
         assert near_walker.any() != clear, (clear, reach)
-        wall_cells = {tuple(c) for c in np.round(first[on_walls(first)] / 0.05).astype(int)}
-        kept_cells = {tuple(c) for c in np.round(kept / 0.05).astype(int)}
-        assert wall_cells <= kept_cells
+        walls = first[on_walls(first)]  # each still stands for its cell (within its
+        # diagonal: a cell's point is the mean of what the key scans saw in it)
+        nearest = np.hypot(*(walls[:, None] - kept[None]).transpose(2, 0, 1)).min(1)
+        assert nearest.max() <= 0.05 * math.sqrt(2), (clear, reach)
 
 
 def test_walls_between_far_end_points_are_sampled_but_not_across_an_edge():
@@ -520,3 +524,23 @@ def test_how_far_a_match_may_stray_from_the_odometry_follows_the_stated_slip_rat
     # slip_test = "search": the search agreed with the odometry, so no slip is considered
     sure = fused_pose(match, information, odometry, sigma, glitch=None)
     assert sure is not None and sure[0].x == pytest.approx(kept[0].x)
+
+
+def test_a_millimetre_moves_the_mean_thinned_local_map_by_less_than_a_centimetre():
+    """``thin_to = "mean"``: every point of a wall seen with 1 cm noise (across a cell
+    boundary) moved by at most 1 mm moves the thinned map's points by at most a centimetre,
+    most of them by a few millimetres; the first point of each cell, by up to half a cell
+    (another point stands for the cell)."""
+    from scipy.spatial import cKDTree
+
+    from dynslam_cli.localization.scanmatch import cell_means, thin
+
+    rng = np.random.default_rng(0)
+    wall = np.column_stack((np.arange(0.0, 4.0, 0.004), 0.3 + 0.01 * rng.standard_normal(1000)))
+    moved = wall + rng.uniform(-0.001, 0.001, wall.shape)
+    means = cell_means(wall, 0.05)
+    shift, _ = cKDTree(means).query(cell_means(moved, 0.05))
+    assert len(means) == 160 and shift.max() < 0.012 and np.percentile(shift, 90) < 0.005
+    assert np.abs(means[:, 1] - 0.3).max() < 0.03  # on the wall, as its points
+    first, _ = cKDTree(wall[thin(wall, 0.05)]).query(moved[thin(moved, 0.05)])
+    assert first.max() > 0.02

@@ -14,6 +14,7 @@ fit the local map better in most of them.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -83,8 +84,11 @@ def converter_spacing(angles: np.ndarray) -> tuple[float, float] | None:
 
 def match_errors(scans: Sequence[Scan], cfg: MatchConfig, noise: NoiseModel) -> np.ndarray:
     """Each scan's rms distance (m) to the local map where its match was refined, in a
-    front end run over ``scans`` alone (NaN where it was not)."""
-    matcher = ScanMatcher(cfg, noise)
+    front end run over ``scans`` alone (NaN where it was not). The local map keeps the first
+    point of each square whatever ``thin_to`` says: BETTER_SHARE was measured so, and a map
+    of means tells the spacings apart less (the Intel bag: 89 of 198 scans fit better at 1°
+    with means, 158 with first points)."""
+    matcher = ScanMatcher(dataclasses.replace(cfg, thin_to="first"), noise)
     errors = np.full(len(scans), np.nan)
     for i, scan in enumerate(scans):
         matcher.increment(scan)

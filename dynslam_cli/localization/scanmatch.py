@@ -265,14 +265,20 @@ class LocalMap:
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
             half = self._cfg.correlative.resolution_m / 2
             walls = transform_points(pose, sampled_walls(points, half))
-            self._walls.append(walls[thin(walls, half)])
+            self._walls.append(self._thinned(walls, half))
             self._fresh.append(self._walls[-1])
         pts = np.concatenate(self._keys)
         if len(pts) < MIN_POINTS:
             self.reference = None
             return
-        self.reference = PointIndex(pts[thin(pts, self._cfg.local_map_cell_m)],
+        self.reference = PointIndex(self._thinned(pts, self._cfg.local_map_cell_m),
                                     neighbours=self._cfg.normal_neighbours)
+
+    def _thinned(self, points: np.ndarray, cell: float) -> np.ndarray:
+        """One point per ``cell`` square, as ``thin_to`` says."""
+        if self._cfg.thin_to == "mean":
+            return cell_means(points, cell)
+        return points[thin(points, cell)]
 
     def _clear(self, view: RangeView) -> None:
         """Takes the key scans' points and walls that ``view`` saw through out of them (the
@@ -311,7 +317,7 @@ class LocalMap:
         cfg = self._cfg.correlative
         if self._field is None or self._stale >= REBUILD_KEYS:
             walls = np.concatenate(self._walls)
-            self._field = log_field(walls[thin(walls, cfg.resolution_m / 2)], cfg)
+            self._field = log_field(self._thinned(walls, cfg.resolution_m / 2), cfg)
             self._stale = 0
         elif self._fresh:
             self._field = with_points(self._field, np.concatenate(self._fresh), cfg)
@@ -323,6 +329,21 @@ class LocalMap:
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
     """Indices of the first point in each ``cell`` square (in order of first appearance)."""
     return first_in_cells(np.ascontiguousarray(points, dtype=np.float64), cell)
+
+
+def cell_means(points: np.ndarray, cell: float) -> np.ndarray:
+    """The mean of the points (N×2) in each ``cell`` square, in order of each square's
+    first point."""
+    if len(points) == 0:
+        return np.empty((0, 2))
+    ij = np.floor(points / cell).astype(np.int64)
+    ij -= ij.min(axis=0)
+    key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True,
+                                          return_counts=True)
+    means = np.column_stack([np.bincount(inverse, weights=points[:, k]) for k in (0, 1)])
+    means /= counts[:, None]
+    return means[np.argsort(first, kind="stable")]
 
 
 class WheelOdometry:
