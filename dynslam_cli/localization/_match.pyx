@@ -358,3 +358,28 @@ def first_in_cells(const double[:, ::1] pts, double cell):
                 out[kept] = i
                 kept += 1
     return out_arr[:kept]
+
+
+def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const double[::1] ys,
+                        const double[::1] headings, const double[:, ::1] nearest,
+                        double offset, double bin_rad, double margin):
+    """For each point, how many of the range views (at ``xs``, ``ys`` facing ``headings``,
+    each with its per-bin ``nearest`` ranges) saw more than ``margin`` beyond it: the bin of
+    bearing b (from the view's heading) being floor((b + offset) / bin_rad) modulo the bin
+    count, as scanmatch.bearing_bins has it."""
+    cdef Py_ssize_t n = pts.shape[0], v_count = xs.shape[0], bins = nearest.shape[1], i, v
+    cdef long long k
+    cdef double dx, dy
+    counts_arr = np.zeros(n, dtype=np.intp)
+    cdef Py_ssize_t[::1] counts = counts_arr
+    with nogil:
+        for v in range(v_count):
+            for i in range(n):
+                dx = pts[i, 0] - xs[v]
+                dy = pts[i, 1] - ys[v]
+                k = <long long>floor((atan2(dy, dx) - headings[v] + offset) / bin_rad) % bins
+                if k < 0:
+                    k += bins
+                if hypot(dx, dy) < nearest[v, k] - margin:
+                    counts[i] += 1
+    return counts_arr

@@ -31,7 +31,7 @@ from dynslam_cli.geometry import (
     transform_points,
 )
 from dynslam_cli.localization import _match
-from dynslam_cli.localization._match import PointIndex, first_in_cells
+from dynslam_cli.localization._match import PointIndex, first_in_cells, seen_through_counts
 from dynslam_cli.localization.correlative import (
     LogField,
     OdometryCalibration,
@@ -295,12 +295,12 @@ class LocalMap:
         if len(self._views) < views:
             return np.zeros(len(points), dtype=bool)
         if self._stacked is None:
-            self._stacked = tuple(np.array(v) for v in zip(*self._views, strict=True))
+            self._stacked = tuple(np.ascontiguousarray(v, dtype=np.float64)
+                                  for v in zip(*self._views, strict=True))
         x, y, heading, nearest = self._stacked
-        dx, dy = points[None, :, 0] - x[:, None], points[None, :, 1] - y[:, None]
-        bins = bearing_bins(np.arctan2(dy, dx) - heading[:, None])
-        passed = np.hypot(dx, dy) < np.take_along_axis(nearest, bins, 1) - SEEN_THROUGH_M
-        return np.count_nonzero(passed, axis=0) >= views
+        return seen_through_counts(np.ascontiguousarray(points, dtype=np.float64), x, y,
+                                   heading, nearest, math.pi, VIEW_BIN_RAD,
+                                   SEEN_THROUGH_M) >= views
 
     def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
         """Which points (N×2, matcher frame) lie within a key scan's reach, less
