@@ -367,16 +367,39 @@ def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const do
     each with its per-bin ``nearest`` ranges) saw more than ``margin`` beyond it: the bin of
     bearing b (from the view's heading) being floor((b + offset) / bin_rad) modulo the bin
     count, as scanmatch.bearing_bins has it."""
-    cdef Py_ssize_t n = pts.shape[0], v_count = xs.shape[0], bins = nearest.shape[1], i, v
+    cdef Py_ssize_t n = pts.shape[0], v_count = xs.shape[0], bins = nearest.shape[1], i, v, b
     cdef long long k
-    cdef double dx, dy
+    cdef double dx, dy, d2, ahead, reach, ch, sh, lo
+    cdef bint rear_blind
     counts_arr = np.zeros(n, dtype=np.intp)
     cdef Py_ssize_t[::1] counts = counts_arr
     with nogil:
         for v in range(v_count):
+            # what the view cannot have seen beyond is skipped before its bearing is taken:
+            # points farther than its longest range, and points behind it (more than a
+            # microradian past ±90° from its heading) where every bin reaching there is
+            # empty (a 180° laser)
+            reach = 0.0
+            rear_blind = True
+            for b in range(bins):
+                if nearest[v, b] > reach:
+                    reach = nearest[v, b]
+                lo = b * bin_rad - offset  # (the bin's bearings: [lo, lo + bin_rad))
+                if nearest[v, b] > 0.0 and (lo < -1.5707963267948966 - 1e-6
+                                            or lo + bin_rad > 1.5707963267948966 + 1e-6):
+                    rear_blind = False
+            reach = (reach - margin) * (1.0 + 1e-9)
+            if reach <= 0.0:
+                continue
+            ch, sh = cos(headings[v]), sin(headings[v])
             for i in range(n):
                 dx = pts[i, 0] - xs[v]
                 dy = pts[i, 1] - ys[v]
+                d2 = dx * dx + dy * dy
+                ahead = dx * ch + dy * sh
+                if d2 > reach * reach or (rear_blind and ahead < 0.0
+                                          and ahead * ahead > 1e-12 * d2):
+                    continue
                 k = <long long>floor((atan2(dy, dx) - headings[v] + offset) / bin_rad) % bins
                 if k < 0:
                     k += bins
