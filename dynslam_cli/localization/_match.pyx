@@ -362,43 +362,31 @@ def first_in_cells(const double[:, ::1] pts, double cell):
 
 def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const double[::1] ys,
                         const double[::1] headings, const double[:, ::1] nearest,
+                        const double[::1] reach, const u8[::1] rear_blind,
                         double offset, double bin_rad, double margin):
     """For each point, how many of the range views (at ``xs``, ``ys`` facing ``headings``,
     each with its per-bin ``nearest`` ranges) saw more than ``margin`` beyond it: the bin of
     bearing b (from the view's heading) being floor((b + offset) / bin_rad) modulo the bin
-    count, as scanmatch.bearing_bins has it."""
-    cdef Py_ssize_t n = pts.shape[0], v_count = xs.shape[0], bins = nearest.shape[1], i, v, b
+    count, as scanmatch.bearing_bins has it. A point farther from a view than its
+    ``reach``, or, where the view is ``rear_blind``, more than a microradian behind it, is
+    skipped before its bearing is taken (scanmatch.ViewStack says why that is exact)."""
+    cdef Py_ssize_t n = pts.shape[0], v_count = xs.shape[0], bins = nearest.shape[1], i, v
     cdef long long k
-    cdef double dx, dy, d2, ahead, reach, ch, sh, lo
-    cdef bint rear_blind
+    cdef double dx, dy, d2, ahead, ch, sh, r2
     counts_arr = np.zeros(n, dtype=np.intp)
     cdef Py_ssize_t[::1] counts = counts_arr
     with nogil:
         for v in range(v_count):
-            # what the view cannot have seen beyond is skipped before its bearing is taken:
-            # points farther than its longest range, and points behind it (more than a
-            # microradian past ±90° from its heading) where every bin reaching there is
-            # empty (a 180° laser)
-            reach = 0.0
-            rear_blind = True
-            for b in range(bins):
-                if nearest[v, b] > reach:
-                    reach = nearest[v, b]
-                lo = b * bin_rad - offset  # (the bin's bearings: [lo, lo + bin_rad))
-                if nearest[v, b] > 0.0 and (lo < -1.5707963267948966 - 1e-6
-                                            or lo + bin_rad > 1.5707963267948966 + 1e-6):
-                    rear_blind = False
-            reach = (reach - margin) * (1.0 + 1e-9)
-            if reach <= 0.0:
+            if reach[v] <= 0.0:
                 continue
+            r2 = reach[v] * reach[v]
             ch, sh = cos(headings[v]), sin(headings[v])
             for i in range(n):
                 dx = pts[i, 0] - xs[v]
                 dy = pts[i, 1] - ys[v]
                 d2 = dx * dx + dy * dy
                 ahead = dx * ch + dy * sh
-                if d2 > reach * reach or (rear_blind and ahead < 0.0
-                                          and ahead * ahead > 1e-12 * d2):
+                if d2 > r2 or (rear_blind[v] and ahead < 0.0 and ahead * ahead > 1e-12 * d2):
                     continue
                 k = <long long>floor((atan2(dy, dx) - headings[v] + offset) / bin_rad) % bins
                 if k < 0:

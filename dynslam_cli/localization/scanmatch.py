@@ -31,7 +31,7 @@ from dynslam_cli.geometry import (
     transform_points,
 )
 from dynslam_cli.localization import _match
-from dynslam_cli.localization._match import PointIndex, first_in_cells, seen_through_counts
+from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
     LogField,
     OdometryCalibration,
@@ -223,12 +223,51 @@ def bearing_bins(bearing: np.ndarray) -> np.ndarray:
     return np.floor((bearing + math.pi) / VIEW_BIN_RAD).astype(int) % VIEW_BINS
 
 
+def _rear_bins() -> np.ndarray:
+    """The bins that reach more than a microradian past ±90° from a view's heading: where a
+    180° laser saw nothing."""
+    low = np.arange(VIEW_BINS) * VIEW_BIN_RAD - math.pi  # (a bin's bearings: [low, low + bin))
+    return (low < -math.pi / 2 - 1e-6) | (low + VIEW_BIN_RAD > math.pi / 2 + 1e-6)
+
+
+REAR_BINS = _rear_bins()
+
+
+class ViewStack(NamedTuple):
+    """Range views as arrays (their positions, headings and per-bin ranges, V×VIEW_BINS),
+    with what each cannot have seen beyond: its reach (its longest range less
+    SEEN_THROUGH_M, a part in 10⁹ to spare for rounding: no point farther lies inside what
+    it saw) and whether it is blind behind (every bin of REAR_BINS empty: no point more
+    than a microradian behind it lies in a bin it saw)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    nearest: np.ndarray
+    reach: np.ndarray
+    rear_blind: np.ndarray
+
+
+def stacked_views(views: Sequence[RangeView]) -> ViewStack:
+    """``views`` as one :class:`ViewStack`."""
+    x, y, heading, nearest = (np.ascontiguousarray(v, dtype=np.float64)
+                              for v in zip(*views, strict=True))
+    reach = (nearest.max(axis=1) - SEEN_THROUGH_M) * (1.0 + 1e-9)
+    rear_blind = ~(nearest[:, REAR_BINS] > 0.0).any(axis=1)
+    return ViewStack(x, y, heading, nearest, reach, rear_blind.astype(np.uint8))
+
+
+def seen_through_counts(stack: ViewStack, points: np.ndarray) -> np.ndarray:
+    """For each point (N×2, matcher frame), how many of the views saw more than
+    SEEN_THROUGH_M beyond it in its direction: where their beams passed, nothing stood."""
+    return _match.seen_through_counts(np.ascontiguousarray(points, dtype=np.float64),
+                                      *stack, math.pi, VIEW_BIN_RAD, SEEN_THROUGH_M)
+
+
 def seen_through(view: RangeView, points: np.ndarray) -> np.ndarray:
     """Which points (N×2, matcher frame) lie more than SEEN_THROUGH_M inside what the view
     saw in their direction: where its beams passed, nothing stands."""
-    dx, dy = points[:, 0] - view.x, points[:, 1] - view.y
-    bins = bearing_bins(np.arctan2(dy, dx) - view.heading)
-    return np.hypot(dx, dy) < view.nearest[bins] - SEEN_THROUGH_M
+    return seen_through_counts(stacked_views([view]), points) > 0
 
 
 class LocalMap:
@@ -247,8 +286,8 @@ class LocalMap:
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._stale = 0  # key scans added to the field since it was made anew
         self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
-        self._stacked: tuple[np.ndarray, ...] | None = None  # the views as arrays (x, y,
-        # heading, nearest), made when first asked after a key scan
+        self._stacked: ViewStack | None = None  # the views, stacked when first asked
+        # after a key scan
 
     def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf,
             view: RangeView | None = None) -> None:
@@ -295,12 +334,8 @@ class LocalMap:
         if len(self._views) < views:
             return np.zeros(len(points), dtype=bool)
         if self._stacked is None:
-            self._stacked = tuple(np.ascontiguousarray(v, dtype=np.float64)
-                                  for v in zip(*self._views, strict=True))
-        x, y, heading, nearest = self._stacked
-        return seen_through_counts(np.ascontiguousarray(points, dtype=np.float64), x, y,
-                                   heading, nearest, math.pi, VIEW_BIN_RAD,
-                                   SEEN_THROUGH_M) >= views
+            self._stacked = stacked_views(self._views)
+        return seen_through_counts(self._stacked, points) >= views
 
     def within_reach(self, points: np.ndarray, margin: float) -> np.ndarray:
         """Which points (N×2, matcher frame) lie within a key scan's reach, less
