@@ -230,6 +230,27 @@ def test_the_submaps_table_moves_with_its_points_not_with_their_cells():
     assert np.abs(fa.grid - fb.grid).max() < 0.003 * slope
 
 
+def test_bilinear_scores_move_with_the_guess_not_in_steps_of_a_cell():
+    """A wall's end points cross a cell's edge together when the guess moves 0.4 mm: read
+    at their nearest cell, the window's scores and the pose found jump by most of a cell
+    there; with ``bilinear`` the pose moves on with the guess."""
+    ys = np.arange(-2.0, 2.0, 0.01)
+    wall = np.column_stack([np.full(len(ys), 1.01), ys])  # 1 cm from a cell's centre
+    floor = np.column_stack([np.arange(-1.0, 1.0, 0.01), np.full(200, -2.0)])
+    pts = np.concatenate([wall, floor])
+    field = log_field(pts, CFG)
+    assert np.isclose((field.origin[0] / CFG.resolution_m) % 1.0, 0.0)  # centres at k·res
+    sigma = (0.03, 0.03, math.radians(0.5))
+    moved = {}
+    for bilinear in (False, True):
+        cfg = CorrelativeConfig(bilinear=bilinear)
+        # the wall's points at x = 1.0248 and 1.0252: either side of the edge at 1.025
+        a, b = (search(field, pts, Pose2D(x, 0.0, 0.0), sigma, cfg) for x in (0.0148, 0.0152))
+        moved[bilinear] = b.pose.x - a.pose.x
+    assert abs(moved[False]) > 0.03  # a cell's step for 0.4 mm
+    assert 0.0 < moved[True] < 0.001
+
+
 def test_a_table_grown_point_by_point_is_the_table_made_at_once():
     """The submap's table grows with each key scan instead of being made anew: the same
     values, on a grid grown to hold them."""

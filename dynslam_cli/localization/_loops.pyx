@@ -95,16 +95,26 @@ def lattice_scores(const float[:, ::1] grid, const Py_ssize_t[:, ::1] dr,
     return out
 
 
+cdef inline double _cell(const double[:, ::1] grid, Py_ssize_t r, Py_ssize_t c) noexcept nogil:
+    """A cell's value; 0 off the grid."""
+    if r < 0 or c < 0 or r >= grid.shape[0] or c >= grid.shape[1]:
+        return 0.0
+    return grid[r, c]
+
+
 def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
                 const double[:, ::1] pts, double x, double y, const double[::1] thetas,
-                const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty):
+                const Py_ssize_t[::1] tx, const Py_ssize_t[::1] ty, bint bilinear=False):
     """Mean grid value of ``pts`` turned by each θ and moved to (x, y) plus (tx, ty) cells:
     shape len(thetas) × len(ty) × len(tx); points off the grid count 0. The grid's cell
-    (0, 0) is centred on (ox, oy)."""
+    (0, 0) is centred on (ox, oy). A point reads its nearest cell, or with ``bilinear`` the
+    four cells around it weighed by its place among their centres (the score then moves
+    with the pose, not in steps of a cell)."""
     cdef Py_ssize_t n = pts.shape[0], nx = tx.shape[0], ny = ty.shape[0], k, a, b, r, c, t
     cdef Py_ssize_t rows = grid.shape[0], cols = grid.shape[1], ix, iy, b0, b1
-    cdef double ct, st, px, py
+    cdef double ct, st, px, py, u, v, w00, w01, w10, w11
     cdef const double* row
+    cdef const double* row1
     cdef double* acc
     cdef bint consecutive = True  # tx = tx[0], tx[0] + 1, ...: a row's cells are contiguous
     for b in range(1, nx):
@@ -118,6 +128,35 @@ def mean_scores(const double[:, ::1] grid, double ox, double oy, double res,
             for k in range(n):
                 px = x + ct * pts[k, 0] - st * pts[k, 1]
                 py = y + st * pts[k, 0] + ct * pts[k, 1]
+                if bilinear:
+                    u = (px - ox) / res
+                    v = (py - oy) / res
+                    ix = <Py_ssize_t>floor(u)
+                    iy = <Py_ssize_t>floor(v)
+                    u -= ix
+                    v -= iy
+                    w00, w01 = (1.0 - u) * (1.0 - v), u * (1.0 - v)
+                    w10, w11 = (1.0 - u) * v, u * v
+                    for a in range(ny):
+                        r = iy + ty[a]
+                        if r < -1 or r >= rows:
+                            continue
+                        c = ix + tx[0] if nx else 0
+                        if consecutive and nx and 0 <= r < rows - 1 and c >= 0 \
+                                and c + nx < cols:  # all four cells inside: vectorized
+                            row = &grid[r, c]
+                            row1 = &grid[r + 1, c]
+                            acc = &o[t, a, 0]
+                            for b in range(nx):
+                                acc[b] += (w00 * row[b] + w01 * row[b + 1]
+                                           + w10 * row1[b] + w11 * row1[b + 1])
+                            continue
+                        for b in range(nx):
+                            c = ix + tx[b]
+                            o[t, a, b] += (_cell(grid, r, c) * w00 + _cell(grid, r, c + 1) * w01
+                                           + _cell(grid, r + 1, c) * w10
+                                           + _cell(grid, r + 1, c + 1) * w11)
+                    continue
                 ix = <Py_ssize_t>floor((px - ox) / res + 0.5)
                 iy = <Py_ssize_t>floor((py - oy) / res + 0.5)
                 for a in range(ny):

@@ -275,7 +275,7 @@ def _window_posterior(field: LogField, pts: np.ndarray, guess: Pose2D,
     dth = np.arange(-n_th, n_th + 1) * step
     scores = _loops.mean_scores(field.grid, float(field.origin[0]), float(field.origin[1]),
                                 res, np.ascontiguousarray(pts, dtype=np.float64),
-                                guess.x, guess.y, guess.theta + dth, t, t)
+                                guess.x, guess.y, guess.theta + dth, t, t, cfg.bilinear)
     dm = t * res
     log_post = cfg.effective_points * scores + odometry_log_prior(
         dm[None, None, :] / sx, dm[None, :, None] / sy, dth[:, None, None] / sth,
