@@ -82,6 +82,22 @@ def test_an_object_appeared_only_if_seen_standing_for_still_s(stood_s, appeared)
     assert ("appeared" in kinds) == appeared
 
 
+@pytest.mark.parametrize("through_s", [5.2, 15.0])
+def test_one_scan_that_sees_through_a_standing_box_neither_ends_it_nor_blinds_its_leaving(
+        through_s):
+    """One scan passes through a box that stands from 5 s to 25 s (placed wrong, or a
+    glitch), while it arrives or while it stands: the box is seen again 0.1 s later, so it
+    had not gone (no vacated then), and the face that scan cleared, seen standing since,
+    is seen cleared again when the box is taken away at 25 s (vacated then)."""
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(350):
+        t = k / RATE
+        slam.step(_scan(t, box=5.0 <= t < 25.0 and abs(t - through_s) > 0.01))
+    events = slam.result().changes
+    assert [e.kind for e in events] == ["appeared", "vacated"]
+    assert 5.0 <= events[0].first_s <= 5.2 and 25.0 <= events[1].first_s <= 25.3
+
+
 def test_without_the_dynamic_map_there_are_no_events():
     config = load_config(overrides={"ekf": {"localization": "odometry"},
                                     "dynamic": {"enabled": False}})

@@ -82,7 +82,15 @@ class ChangeRecorder:
         self.stamps = array("d")  # per scan
         self._sightings = array("d")
         self._cleared = array("q")  # flat index of each cell D held Occupied, crossed ...
-        self._cleared_scan = array("i")  # ... and the scan that crossed it
+        self._cleared_scan = array("i")  # ... the scan that crossed it ...
+        self._cleared_fresh = array("b")  # ... and whether it is fresh evidence of a place
+        # seen empty (:meth:`_note_cleared`)
+        self._standing_from = np.zeros(0, np.float32)
+        """Per cell (flat index): when a beam first ended there where S^{t-1} was Free (an
+        object seen there) since the cell was last cleared, in seconds from the first scan;
+        -inf if it was never cleared, +inf if nothing was seen there since it was."""
+        self._standing_to = np.zeros(0, np.float32)
+        """... and when one last did."""
         self._crossed = array("q")  # flat index of each crossed cell ...
         self._crossed_scan = array("i")  # ... and the scan that crossed it
         self._rising = array("q")  # flat index of each cell hit where S is not Occupied ...
@@ -133,8 +141,9 @@ class ChangeRecorder:
                 scan).tobytes())
         static = grids.layers["static"].reshape(-1)
         if "dynamic" in grids.layers:
-            _add(self._cleared, self._cleared_scan, scan, _grid.cells_above(
-                grids.layers["dynamic"].reshape(-1), obs.free, self._occupied))
+            self._note_cleared(_grid.cells_above(grids.layers["dynamic"].reshape(-1),
+                                                 obs.free, self._occupied),
+                               obs.hit[hit_on_free], scan)
         _add(self._crossed, self._crossed_scan, scan,
              _grid.cells_above(static, obs.free, self._occupied))
         _add(self._rising, self._rising_scan, scan,
@@ -144,11 +153,31 @@ class ChangeRecorder:
         if len(self._crossed) + len(self._rising) >= self._compact_at:
             self.compact()
 
+    def _note_cleared(self, cleared: np.ndarray, hit: np.ndarray, scan: int) -> None:
+        """One scan's cells D held Occupied that a beam crossed, and its cells hit where
+        S^{t-1} was Free. A clearing is fresh evidence of a place seen empty where the cell
+        was never cleared before, or where an object was seen standing on it for ``still_s``
+        since it last was (a beam past a standing object's edge clears the same few cells
+        again and again, between hits; a cell crossed once while an object arrived counts
+        again once it has been seen standing there)."""
+        n = len(self.grids.layers["static"])
+        if len(self._standing_from) < n:
+            self._standing_from = _grown(self._standing_from, n, -np.inf)
+            self._standing_to = _grown(self._standing_to, n, -np.inf)
+        start, end = self._standing_from, self._standing_to
+        if len(cleared):
+            _add(self._cleared, self._cleared_scan, scan, cleared)
+            fresh = np.isneginf(start[cleared]) | (
+                end[cleared] - start[cleared] >= self.config.still_s)
+            self._cleared_fresh.frombytes(fresh.astype(np.int8).tobytes())
+            start[cleared] = np.inf
+        now = np.float32(self.stamps[-1] - self.stamps[0])
+        start[hit[np.isposinf(start[hit])]] = now
+        end[hit] = now
+
     def _note_first_free(self, cells: np.ndarray, scan: int) -> None:
         if len(self._first_free) < len(self.grids.layers["static"]):
-            grown = np.zeros(len(self.grids.layers["static"]), np.int32)
-            grown[:len(self._first_free)] = self._first_free
-            self._first_free = grown
+            self._first_free = _grown(self._first_free, len(self.grids.layers["static"]), 0)
         fresh = cells[self._first_free[cells] == 0]
         self._first_free[fresh] = scan + 1
 
@@ -203,12 +232,14 @@ class ChangeRecorder:
         """Every sighting (N × BLOB_FIELDS), in scan order."""
         return np.frombuffer(self._sightings, np.float64).reshape(-1, BLOB_FIELDS)
 
-    def clearings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def clearings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
-        indices and scans."""
+        indices, scans, and whether each was fresh evidence of a place seen empty
+        (:meth:`_note_cleared`)."""
         cells = np.frombuffer(self._cleared, np.int64)
         scans = np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
-        return self.grids.cell_centres(cells), cells, scans
+        fresh = np.frombuffer(self._cleared_fresh, np.int8).astype(bool)
+        return self.grids.cell_centres(cells), cells, scans, fresh
 
     def rising(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells hit where S did not yet hold them Occupied (nor Free around them), and the
@@ -220,6 +251,13 @@ class ChangeRecorder:
         """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
         return (np.frombuffer(self._crossed, np.int64),
                 np.frombuffer(self._crossed_scan, np.int32).astype(np.int64))
+
+
+def _grown(values: np.ndarray, n: int, fill: float) -> np.ndarray:
+    """``values`` grown to ``n`` entries, the new ones ``fill``."""
+    grown = np.full(n, fill, values.dtype)
+    grown[:len(values)] = values
+    return grown
 
 
 def _add(cells: array, scans: array, scan: int, new: np.ndarray) -> None:
@@ -401,7 +439,7 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
         return []
     config, res = recorder.config, recorder.grids.resolution
     stamps = np.asarray(recorder.stamps)
-    cleared_xy, cleared_cells, cleared_scans = recorder.clearings()
+    cleared_xy, cleared_cells, cleared_scans, cleared_fresh = recorder.clearings()
     groups = _box_groups(np.array([(b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(),
                                     b[:, Y1].max()) for b in still]), config.merge_distance_m)
     out = []
@@ -413,8 +451,9 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
         inside = ((cleared_xy[:, 0] >= x0) & (cleared_xy[:, 0] <= x1)
                   & (cleared_xy[:, 1] >= y0) & (cleared_xy[:, 1] <= y1))
         enough = max(config.min_area_m2 / res ** 2, float(np.median(b[:, CELLS])) / 2)
-        for episode, gone in _episodes(seen, cleared_cells[inside],
-                                       cleared_scans[inside], enough):
+        for episode, gone in _episodes(seen, cleared_cells[inside], cleared_scans[inside],
+                                       cleared_fresh[inside], enough, stamps,
+                                       config.still_s):
             sightings = b[np.isin(b[:, SCAN], episode)]
             t = stamps[episode]
             if len(episode) < config.min_scans or not _steady(t, stamps, config.still_s):
@@ -456,50 +495,37 @@ def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
     return bool(np.any(2 * (j - i + 1) >= scans))
 
 
-def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, enough: float
+def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, fresh: np.ndarray,
+              enough: float, stamps: np.ndarray, still_s: float
               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Split a place's sighting scans (sorted) where, between two sightings, beams cleared
-    ``enough`` cells of it that had not been cleared since the run of sightings began (the
-    object seen gone; a beam past a standing object's edge clears the same few cells again
-    and again): each run of sightings and, if it ended so, the scans that saw it gone (from
-    the one that brought the count to ``enough`` to the next sighting)."""
+    ``enough`` of its cells as ``fresh`` evidence of a place seen empty
+    (:meth:`ChangeRecorder._note_cleared`), in scans that did not see the object there, and
+    the place stayed so for ``still_s`` (by the scans' ``stamps``: seen again sooner, it
+    had not gone; one scan placed wrong sees through what stands): each run of sightings
+    and, if it ended so, the scans that saw it gone (from the one that brought the count to
+    ``enough`` to the next sighting)."""
     order = np.argsort(scans, kind="stable")
-    cells, scans = cells[order], scans[order]
+    cells, scans, fresh = cells[order], scans[order], fresh[order]
     cut = np.searchsorted(seen, scans, side="right")  # sightings up to each clearing
     bounds = np.flatnonzero(np.diff(cut, prepend=-1, append=-1))  # (runs of one gap)
-    segment = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
-    earlier = _earlier_segment(cells, segment)
-    unseen = ~np.isin(scans, seen)
+    counted = fresh & ~np.isin(scans, seen)  # (not in a scan that saw the object there)
     out: list[tuple[np.ndarray, np.ndarray | None]] = []
-    start, since = 0, -1  # (a cell cleared in a segment after ``since`` flickers)
-    for g, (a, b) in enumerate(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True)):
+    start = 0
+    for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
         gap = int(cut[a])
         if gap == 0:
-            since = g
             continue
-        fresh = unseen[a:b] & (earlier[a:b] <= since)
-        new = np.unique(cells[a:b][fresh], return_index=True)[1]
+        new = np.unique(cells[a:b][counted[a:b]], return_index=True)[1]
         if len(new) >= enough:
             reached = np.sort(new)[math.ceil(enough) - 1]
-            gone = np.unique(scans[a:b][fresh][reached:])
+            gone = np.unique(scans[a:b][counted[a:b]][reached:])
+            if gap < len(seen) and stamps[seen[gap]] - stamps[gone[0]] < still_s:
+                continue
             out.append((seen[start:gap], gone))
-            start, since = gap, g
+            start = gap
     out.append((seen[start:], None))
     return [e for e in out if len(e[0])]
-
-
-def _earlier_segment(cells: np.ndarray, segment: np.ndarray) -> np.ndarray:
-    """For each entry, the last segment before its own (``segment`` sorted) that holds the
-    same cell; -1 if none does."""
-    order = np.lexsort((segment, cells))
-    c, s = cells[order], segment[order]
-    run = np.flatnonzero(np.diff(c, prepend=-1) | np.diff(s, prepend=-1))  # (cell, segment)
-    before = np.full(len(run), -1)
-    same = (run > 0) & (c[np.maximum(run - 1, 0)] == c[run])
-    before[same] = s[run[same] - 1]
-    out = np.empty(len(cells), np.int64)
-    out[order] = np.repeat(before, np.diff(np.append(run, len(c))))
-    return out
 
 
 def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
