@@ -439,21 +439,23 @@ class MatchConfig:
     long relations of the benchmark logs do not drift."""
     local_map_cell_m: float = 0.05
     """The local map keeps one point per square of this side (overlapping key scans)."""
-    thin_to: str = "first"
+    thin_to: str = "mean"
     """Which point stands for a square of the local map (and of the correlative search's
-    walls): "first", the first point in it; "mean", the mean of its points (a voxel
-    grid's centroid), which moves by a fraction of a millimetre when a point moves by a
-    millimetre, where the first point may give way to another a cell away. "mean" wins the
-    localization: five perturbed copies, pose graph off, medians (spread) MIT 0.0619 (45%)
-    -> 0.0554 (39%), Intel 0.0997 (42%) -> 0.0826 (25%), FR079 0.0796 (7%) -> 0.0772 (14%);
-    one run each, local / full: MIT 0.0727 / 0.0272 -> 0.0603 / 0.0265, Intel 0.0795 /
-    0.0152 -> 0.0906 / 0.0146, FR079 0.0878 / 0.0652 -> 0.0757 / 0.0647, Intel bag 0.1105
-    / 0.0151 -> 0.0922 local; perfect-odometry worlds (15 runs) 0.0229 -> 0.0190 m with
-    the pose graph off (worst 0.199 -> 0.142), 0.0083 -> 0.0077 with it on. Not yet the
-    default: on the corridors with drifting odometry (tests/test_dynamic.py) three
-    departures of the box in one alcove, seen across the corridor, clear fewer cells of its
-    place than the 8 (``[changes] min_area_m2``) that make a ``vacated`` event, and two of its
-    arrivals go with them (recall 14 of 16 and 14 of 17; the trajectory 0.0553 -> 0.0547)."""
+    walls): "mean", the mean of its points (a voxel grid's centroid), which moves by a
+    fraction of a millimetre when a point moves by a millimetre; "first", the first point
+    in it (the default before the change events counted a cell crossed while an object
+    arrived again once it stood there), which may give way to another a cell away. "mean"
+    wins the localization: five perturbed copies, pose graph off, medians (spread) MIT
+    0.0619 (45%) -> 0.0554 (39%), Intel 0.0997 (42%) -> 0.0826 (25%), FR079 0.0796 (7%) ->
+    0.0772 (14%); one run each, local / full: MIT 0.0727 / 0.0272 -> 0.0603 / 0.0265,
+    Intel 0.0795 / 0.0152 -> 0.0906 / 0.0146, FR079 0.0878 / 0.0652 -> 0.0757 / 0.0647,
+    Intel bag 0.1105 / 0.0151 -> 0.0922 local; perfect-odometry worlds (15 runs) 0.0229 ->
+    0.0190 m with the pose graph off (worst 0.199 -> 0.142), 0.0083 -> 0.0077 with it on;
+    the Radish rows (bench/radish.py --seed 0) geometric mean of the 39 ATE ratios 0.914,
+    26 of 39 at or below the better of Karto and GMapping (27 with "first"). A row it
+    loses: the office with true odometry and the pose graph on, seed 0 (bench/accuracy.py
+    --modes S/D), ATE 0.0372 -> 0.0677 m, S precision 0.699 -> 0.479 (seeds 1 and 2: 0.0398
+    -> 0.0423, 0.0779 -> 0.0534)."""
     normal_neighbours: int = 6
     """Points whose spread gives a local-map point's normal."""
     within_reach: bool = False

@@ -83,8 +83,8 @@ class ChangeRecorder:
         self._sightings = array("d")
         self._cleared = array("q")  # flat index of each cell D held Occupied, crossed ...
         self._cleared_scan = array("i")  # ... the scan that crossed it ...
-        self._cleared_fresh = array("b")  # ... and whether it is fresh evidence of a place
-        # seen empty (:meth:`_note_cleared`)
+        self._cleared_fresh = array("b")  # ... and whether an object stood on it since it
+        # was last cleared (:meth:`_note_cleared`)
         self._standing_from = np.zeros(0, np.float32)
         """Per cell (flat index): when a beam first ended there where S^{t-1} was Free (an
         object seen there) since the cell was last cleared, in seconds from the first scan;
@@ -155,11 +155,9 @@ class ChangeRecorder:
 
     def _note_cleared(self, cleared: np.ndarray, hit: np.ndarray, scan: int) -> None:
         """One scan's cells D held Occupied that a beam crossed, and its cells hit where
-        S^{t-1} was Free. A clearing is fresh evidence of a place seen empty where the cell
-        was never cleared before, or where an object was seen standing on it for ``still_s``
-        since it last was (a beam past a standing object's edge clears the same few cells
-        again and again, between hits; a cell crossed once while an object arrived counts
-        again once it has been seen standing there)."""
+        S^{t-1} was Free. Each clearing is recorded as fresh where the cell was never
+        cleared before, or where an object was seen standing on it for ``still_s`` since it
+        last was (how often it was cleared before is :func:`_episodes`' to weigh)."""
         n = len(self.grids.layers["static"])
         if len(self._standing_from) < n:
             self._standing_from = _grown(self._standing_from, n, -np.inf)
@@ -234,7 +232,7 @@ class ChangeRecorder:
 
     def clearings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
-        indices, scans, and whether each was fresh evidence of a place seen empty
+        indices, scans, and whether an object stood on each since it was last cleared
         (:meth:`_note_cleared`)."""
         cells = np.frombuffer(self._cleared, np.int64)
         scans = np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
@@ -453,7 +451,7 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
         enough = max(config.min_area_m2 / res ** 2, float(np.median(b[:, CELLS])) / 2)
         for episode, gone in _episodes(seen, cleared_cells[inside], cleared_scans[inside],
                                        cleared_fresh[inside], enough, stamps,
-                                       config.still_s):
+                                       config.still_s, recorder.passes_to_leave):
             sightings = b[np.isin(b[:, SCAN], episode)]
             t = stamps[episode]
             if len(episode) < config.min_scans or not _steady(t, stamps, config.still_s):
@@ -496,36 +494,51 @@ def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
 
 
 def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, fresh: np.ndarray,
-              enough: float, stamps: np.ndarray, still_s: float
+              enough: float, stamps: np.ndarray, still_s: float, contested: int
               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Split a place's sighting scans (sorted) where, between two sightings, beams cleared
-    ``enough`` of its cells as ``fresh`` evidence of a place seen empty
-    (:meth:`ChangeRecorder._note_cleared`), in scans that did not see the object there, and
-    the place stayed so for ``still_s`` (by the scans' ``stamps``: seen again sooner, it
-    had not gone; one scan placed wrong sees through what stands): each run of sightings
-    and, if it ended so, the scans that saw it gone (from the one that brought the count to
-    ``enough`` to the next sighting)."""
+    ``enough`` of its cells in scans that did not see the object there, each cell not
+    cleared before since the run of sightings began (a beam past a standing object's edge,
+    or along a face it grazes, clears the same cells again and again), or cleared at most
+    ``contested`` times and seen standing since (``fresh``,
+    :meth:`ChangeRecorder._note_cleared`: a face crossed while the object arrived counts
+    again); and where the place then stayed so for ``still_s`` (by the scans' ``stamps``:
+    seen again sooner, it had not gone). Each run of sightings and, if it ended so, the
+    scans that saw it gone (from the one that brought the count to ``enough`` to the next
+    sighting)."""
     order = np.argsort(scans, kind="stable")
     cells, scans, fresh = cells[order], scans[order], fresh[order]
     cut = np.searchsorted(seen, scans, side="right")  # sightings up to each clearing
     bounds = np.flatnonzero(np.diff(cut, prepend=-1, append=-1))  # (runs of one gap)
-    counted = fresh & ~np.isin(scans, seen)  # (not in a scan that saw the object there)
+    unseen = ~np.isin(scans, seen)  # (not a scan that saw the object there)
+    keys = np.sort(cells * len(cells) + np.arange(len(cells)))  # by cell, then order
+    before = _earlier_count(keys, cells, np.arange(len(cells)), len(cells))
     out: list[tuple[np.ndarray, np.ndarray | None]] = []
-    start = 0
+    start, since = 0, 0  # (the entry where the run of sightings began)
     for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True):
         gap = int(cut[a])
         if gap == 0:
+            since = b
             continue
-        new = np.unique(cells[a:b][counted[a:b]], return_index=True)[1]
+        here = cells[a:b]
+        cleared = before[a:b] - _earlier_count(keys, here, np.full(b - a, since), len(cells))
+        counted = unseen[a:b] & ((cleared == 0) | (fresh[a:b] & (cleared <= contested)))
+        new = np.unique(here[counted], return_index=True)[1]
         if len(new) >= enough:
             reached = np.sort(new)[math.ceil(enough) - 1]
-            gone = np.unique(scans[a:b][counted[a:b]][reached:])
+            gone = np.unique(scans[a:b][counted][reached:])
             if gap < len(seen) and stamps[seen[gap]] - stamps[gone[0]] < still_s:
                 continue
             out.append((seen[start:gap], gone))
-            start = gap
+            start, since = gap, b
     out.append((seen[start:], None))
     return [e for e in out if len(e[0])]
+
+
+def _earlier_count(keys: np.ndarray, cells: np.ndarray, at: np.ndarray, n: int) -> np.ndarray:
+    """For each cell, how many clearings of it come before entry ``at`` (``keys``: the
+    clearings' cell · n + entry, sorted)."""
+    return np.searchsorted(keys, cells * n + at) - np.searchsorted(keys, cells * n)
 
 
 def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
