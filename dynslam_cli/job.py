@@ -29,6 +29,7 @@ from dynslam_cli.localization.beams import (
     check_spacing,
     converter_spacing,
 )
+from dynslam_cli.localization.frontend import ScanMeasurer
 from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, run
@@ -103,14 +104,15 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                                config.record.period_s, config.map, config.laser.min_range_m)
                      if config.record.file else None)
         ticks = array("d")
-        front = open_front_end(reader, source, config, read_ahead)
+        front = open_front_end(reader, source, config.laser, ScanMeasurer.configured(
+            config.ekf, config.match, config.corners), read_ahead)
         try:
             def on_scan(i: int, scan: Any, slam: Any) -> None:
                 ticks.append(time.perf_counter())
                 if on_progress is not None and i % 20 == 0:
                     on_progress(*front.progress(), i + 1)
                 if snapshots is not None:
-                    snapshots.maybe_take(scan.stamp, slam)
+                    snapshots.maybe_take(scan.stamp, slam.current)
                 if recording is not None:
                     recording.add(scan, slam)
 

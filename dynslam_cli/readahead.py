@@ -21,9 +21,9 @@ import traceback
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, BinaryIO
 
-from dynslam_cli.config import Config
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
+from dynslam_cli.sections import LaserConfig
 from dynslam_cli.types import Scan
 
 if TYPE_CHECKING:
@@ -35,15 +35,17 @@ PIPE_BYTES = 1 << 20
 
 
 class FrontEnd:
-    """The scans of ``reader`` with their measurements, in this process. Iterate
-    :meth:`scans`; :meth:`measurement` gives the measurement of the scan last yielded,
-    :meth:`progress` the bytes read so far and ``stats`` the reader's counts."""
+    """The scans of ``reader``, each held to ``laser``'s limits, with what ``measure`` makes
+    of it, in this process. Iterate :meth:`scans`; :meth:`measurement` gives the measurement
+    of the scan last yielded, :meth:`progress` the bytes read so far and ``stats`` the
+    reader's counts."""
 
-    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
+    def __init__(self, reader: LogReader, source: Source, laser: LaserConfig,
+                 measure: ScanMeasurer) -> None:
         self._reader = reader
         self._source = source
-        self._measure = ScanMeasurer.configured(config.ekf, config.match, config.corners)
-        self._laser = config.laser
+        self._measure = measure
+        self._laser = laser
         self._scan: Scan | None = None
         self._measurement: Measurement | None = None
 
@@ -72,7 +74,8 @@ class ForkedFrontEnd:
     """:class:`FrontEnd` in a forked child process, running ahead (same interface). Call
     :meth:`close` when done: it stops the child if it is still running."""
 
-    def __init__(self, reader: LogReader, source: Source, config: Config) -> None:
+    def __init__(self, reader: LogReader, source: Source, laser: LaserConfig,
+                 measure: ScanMeasurer) -> None:
         self.stats: ReadStats = reader.stats
         self._progress = (0, 0)
         self._scans: list[Scan] = []
@@ -89,7 +92,7 @@ class ForkedFrontEnd:
         self._running = True
         if self._pid == 0:  # the child: never returns
             os.close(read_end)
-            _child(FrontEnd(reader, source, config), write_end)
+            _child(FrontEnd(reader, source, laser, measure), write_end)
         os.close(write_end)
         self._pipe: BinaryIO | None = os.fdopen(read_end, "rb")
 
@@ -193,14 +196,14 @@ def _picklable(e: Exception) -> Exception:
     return e
 
 
-def open_front_end(reader: LogReader, source: Source, config: Config, read_ahead: bool = True
-                   ) -> FrontEnd | ForkedFrontEnd:
+def open_front_end(reader: LogReader, source: Source, laser: LaserConfig,
+                   measure: ScanMeasurer, read_ahead: bool = True) -> FrontEnd | ForkedFrontEnd:
     """A :class:`ForkedFrontEnd` if ``read_ahead`` and it can be used, else a
     :class:`FrontEnd`."""
     if read_ahead and can_fork():
         with contextlib.suppress(OSError):  # no process to spare (a ulimit): work here
-            return ForkedFrontEnd(reader, source, config)
-    return FrontEnd(reader, source, config)
+            return ForkedFrontEnd(reader, source, laser, measure)
+    return FrontEnd(reader, source, laser, measure)
 
 
 def can_fork() -> bool:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from dynslam_cli.mapping.changes import ChangeEvent
 from dynslam_cli.mapping.grid import BAND_ROWS, OccupancyMap
-from dynslam_cli.result import Landmark
+from dynslam_cli.result import Landmark, SlamResult
 
 DYNAMIC_RGB = (220, 30, 30)
 TRAJECTORY_RGB = (40, 90, 230)
@@ -333,15 +333,17 @@ class SnapshotWriter:
         self.frames: list[tuple[bytes, float, float, int, int, float]] = []
         folder.mkdir()
 
-    def maybe_take(self, stamp: float, slam: Any) -> None:
+    def maybe_take(self, stamp: float, current: Callable[[], SlamResult]) -> None:
+        """Take a snapshot at the scan stamped ``stamp`` if it is due: of what ``current``
+        gives (the run's maps and path so far)."""
         if self.next is None:
             self.start = self.next = stamp
         if stamp < self.next:
             return
         self.next = stamp + self.every
-        self._take(stamp, slam.current())
+        self._take(stamp, current())
 
-    def _take(self, stamp: float, result: Any) -> None:
+    def _take(self, stamp: float, result: SlamResult) -> None:
         s = result.static
         since = stamp - (self.start if self.start is not None else stamp)
         picture = render(s, result.dynamic, result.trajectory, result.landmarks, self.threshold)

@@ -11,6 +11,7 @@ import pytest
 
 from dynslam_cli.config import Config
 from dynslam_cli.errors import InputError
+from dynslam_cli.localization.frontend import ScanMeasurer
 from dynslam_cli.readahead import ForkedFrontEnd, FrontEnd, can_fork
 from dynslam_formats import ReaderOptions, open_log
 
@@ -19,10 +20,15 @@ from .conftest import SAMPLES, flaser
 pytestmark = pytest.mark.skipif(not can_fork(), reason="this system cannot fork")
 
 
+def parts(config: Config) -> tuple:
+    """What a front end takes from a configuration: its laser's limits and its measurer."""
+    return config.laser, ScanMeasurer.configured(config.ekf, config.match, config.corners)
+
+
 def drain(kind: type, path: str) -> tuple[list, object, Exception | None]:
     """(scans with their motions, the reader's counts, the error that ended the log)."""
     source, _, reader = open_log(path, ReaderOptions())
-    front = kind(reader, source, Config())
+    front = kind(reader, source, *parts(Config()))
     got, error = [], None
     try:
         for scan in front.scans():
@@ -64,7 +70,7 @@ def test_error_midway_comes_after_the_scans_before_it(tmp_path):
 
 def test_a_front_end_process_that_dies_is_a_clear_error():
     source, _, reader = open_log(str(SAMPLES / "hall" / "hall.log"), ReaderOptions())
-    front = ForkedFrontEnd(reader, source, Config())
+    front = ForkedFrontEnd(reader, source, *parts(Config()))
     os.kill(front._pid, signal.SIGKILL)
     with pytest.raises(RuntimeError, match="front-end process ended unexpectedly"):
         for _ in front.scans():
@@ -75,7 +81,7 @@ def test_a_front_end_process_that_dies_is_a_clear_error():
 
 def test_close_stops_the_child_mid_log():
     source, _, reader = open_log(str(SAMPLES / "hall" / "hall.log"), ReaderOptions())
-    front = ForkedFrontEnd(reader, source, Config())
+    front = ForkedFrontEnd(reader, source, *parts(Config()))
     next(iter(front.scans()))
     front.close()
     source.close()

@@ -220,7 +220,7 @@ def test_snapshots_and_the_gif_carry_their_time_and_frame(tmp_path):
             return SlamResult(static, dynamic, np.array([[100.0, 1.0, 1.0, 0.0]]))
 
     for stamp in (100.0, 103.0, 105.5, 111.0):
-        writer.maybe_take(stamp, Running())
+        writer.maybe_take(stamp, Running().current)
     writer.finish(SlamResult(static, dynamic, np.array([[112.25, 1.0, 1.0, 0.0]])))
     names = sorted(p.name for p in (tmp_path / "snapshots").iterdir())
     assert names == ["evolution.gif", "t000000.0s.png", "t000005.5s.png", "t000011.0s.png",
