@@ -360,6 +360,50 @@ def first_in_cells(const double[:, ::1] pts, double cell):
     return out_arr[:kept]
 
 
+def cell_means(const double[:, ::1] pts, double cell):
+    """The mean of the points in each ``cell`` square (squares keyed as in
+    :func:`first_in_cells`), in order of each square's first point; each square's sums are
+    taken in the points' order (as ``np.bincount`` takes them)."""
+    cdef Py_ssize_t n = pts.shape[0], i, size = 16, slot, groups = 0, g
+    cdef long long key, low = 0xFFFFFFFF
+    cdef unsigned long long h, golden = 0x9E3779B97F4A7C15ULL  # Fibonacci hashing
+    while size < 2 * n:
+        size *= 2
+    cdef int shift = 64
+    cdef Py_ssize_t s = size
+    while s > 1:
+        s //= 2
+        shift -= 1
+    keys_arr = np.zeros(size, dtype=np.int64)
+    group_arr = np.full(size, -1, dtype=np.intp)
+    sums_arr = np.zeros((n, 2))
+    counts_arr = np.zeros(n)
+    cdef long long[::1] keys = keys_arr
+    cdef Py_ssize_t[::1] group = group_arr
+    cdef double[:, ::1] sums = sums_arr
+    cdef double[::1] counts = counts_arr
+    with nogil:
+        for i in range(n):
+            key = ((<long long>floor(pts[i, 0] / cell)) << 32) ^ (
+                (<long long>floor(pts[i, 1] / cell)) & low)
+            h = (<unsigned long long>key) * golden
+            slot = <Py_ssize_t>(h >> shift)
+            while group[slot] >= 0 and keys[slot] != key:
+                slot = (slot + 1) & (size - 1)
+            if group[slot] < 0:
+                group[slot] = groups
+                keys[slot] = key
+                groups += 1
+            g = group[slot]
+            sums[g, 0] += pts[i, 0]
+            sums[g, 1] += pts[i, 1]
+            counts[g] += 1.0
+        for g in range(groups):
+            sums[g, 0] /= counts[g]
+            sums[g, 1] /= counts[g]
+    return sums_arr[:groups]
+
+
 def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const double[::1] ys,
                         const double[::1] headings, const double[:, ::1] nearest,
                         const double[::1] reach, const u8[::1] rear_blind,

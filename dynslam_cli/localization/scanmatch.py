@@ -369,16 +369,7 @@ def thin(points: np.ndarray, cell: float) -> np.ndarray:
 def cell_means(points: np.ndarray, cell: float) -> np.ndarray:
     """The mean of the points (N×2) in each ``cell`` square, in order of each square's
     first point."""
-    if len(points) == 0:
-        return np.empty((0, 2))
-    ij = np.floor(points / cell).astype(np.int64)
-    ij -= ij.min(axis=0)
-    key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
-    _, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True,
-                                          return_counts=True)
-    means = np.column_stack([np.bincount(inverse, weights=points[:, k]) for k in (0, 1)])
-    means /= counts[:, None]
-    return means[np.argsort(first, kind="stable")]
+    return _match.cell_means(np.ascontiguousarray(points, dtype=np.float64), cell)
 
 
 class WheelOdometry:
