@@ -323,12 +323,13 @@ def end_points(const double[::1] ranges, const double[::1] angles, Py_ssize_t st
     return out[:m].copy()
 
 
-def first_in_cells(const double[:, ::1] pts, double cell):
-    """Indices (increasing) of the first point in each ``cell`` square, the square of a
-    point being (floor(x / cell), floor(y / cell)) packed into one 64-bit key as
-    ``(cx << 32) ^ (cy & 0xFFFFFFFF)``: the points ``np.unique`` of those keys would keep,
-    found with a hash table in one pass instead of a sort."""
-    cdef Py_ssize_t n = pts.shape[0], i, size = 16, slot, kept = 0
+def cell_groups(const double[:, ::1] pts, double cell):
+    """Each point's square among the ``cell`` squares the points fall in, numbered in order
+    of each square's first point (n indices), and each square's first point (increasing):
+    the square of a point being (floor(x / cell), floor(y / cell)) packed into one 64-bit
+    key as ``(cx << 32) ^ (cy & 0xFFFFFFFF)``, found with a hash table in one pass instead
+    of a sort."""
+    cdef Py_ssize_t n = pts.shape[0], i, size = 16, slot, squares = 0
     cdef long long key, low = 0xFFFFFFFF
     cdef unsigned long long h, golden = 0x9E3779B97F4A7C15ULL  # Fibonacci hashing
     while size < 2 * n:
@@ -339,69 +340,34 @@ def first_in_cells(const double[:, ::1] pts, double cell):
         s //= 2
         shift -= 1
     keys_arr = np.zeros(size, dtype=np.int64)
-    used_arr = np.zeros(size, dtype=np.uint8)
-    out_arr = np.empty(n, dtype=np.intp)
+    square_arr = np.full(size, -1, dtype=np.intp)
+    group_arr = np.empty(n, dtype=np.intp)
+    first_arr = np.empty(n, dtype=np.intp)
     cdef long long[::1] keys = keys_arr
-    cdef u8[::1] used = used_arr
-    cdef Py_ssize_t[::1] out = out_arr
-    with nogil:
-        for i in range(n):
-            key = ((<long long>floor(pts[i, 0] / cell)) << 32) ^ (
-                (<long long>floor(pts[i, 1] / cell)) & low)
-            h = (<unsigned long long>key) * golden
-            slot = <Py_ssize_t>(h >> shift)
-            while used[slot] and keys[slot] != key:
-                slot = (slot + 1) & (size - 1)
-            if not used[slot]:
-                used[slot] = 1
-                keys[slot] = key
-                out[kept] = i
-                kept += 1
-    return out_arr[:kept]
-
-
-def cell_means(const double[:, ::1] pts, double cell):
-    """The mean of the points in each ``cell`` square (squares keyed as in
-    :func:`first_in_cells`), in order of each square's first point; each square's sums are
-    taken in the points' order (as ``np.bincount`` takes them)."""
-    cdef Py_ssize_t n = pts.shape[0], i, size = 16, slot, groups = 0, g
-    cdef long long key, low = 0xFFFFFFFF
-    cdef unsigned long long h, golden = 0x9E3779B97F4A7C15ULL  # Fibonacci hashing
-    while size < 2 * n:
-        size *= 2
-    cdef int shift = 64
-    cdef Py_ssize_t s = size
-    while s > 1:
-        s //= 2
-        shift -= 1
-    keys_arr = np.zeros(size, dtype=np.int64)
-    group_arr = np.full(size, -1, dtype=np.intp)
-    sums_arr = np.zeros((n, 2))
-    counts_arr = np.zeros(n)
-    cdef long long[::1] keys = keys_arr
+    cdef Py_ssize_t[::1] square = square_arr
     cdef Py_ssize_t[::1] group = group_arr
-    cdef double[:, ::1] sums = sums_arr
-    cdef double[::1] counts = counts_arr
+    cdef Py_ssize_t[::1] first = first_arr
     with nogil:
         for i in range(n):
             key = ((<long long>floor(pts[i, 0] / cell)) << 32) ^ (
                 (<long long>floor(pts[i, 1] / cell)) & low)
             h = (<unsigned long long>key) * golden
             slot = <Py_ssize_t>(h >> shift)
-            while group[slot] >= 0 and keys[slot] != key:
+            while square[slot] >= 0 and keys[slot] != key:
                 slot = (slot + 1) & (size - 1)
-            if group[slot] < 0:
-                group[slot] = groups
+            if square[slot] < 0:
+                square[slot] = squares
                 keys[slot] = key
-                groups += 1
-            g = group[slot]
-            sums[g, 0] += pts[i, 0]
-            sums[g, 1] += pts[i, 1]
-            counts[g] += 1.0
-        for g in range(groups):
-            sums[g, 0] /= counts[g]
-            sums[g, 1] /= counts[g]
-    return sums_arr[:groups]
+                first[squares] = i
+                squares += 1
+            group[i] = square[slot]
+    return group_arr, first_arr[:squares]
+
+
+def first_in_cells(const double[:, ::1] pts, double cell):
+    """Indices (increasing) of the first point in each ``cell`` square
+    (:func:`cell_groups`): the points ``np.unique`` of the squares' keys would keep."""
+    return cell_groups(pts, cell)[1]
 
 
 def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const double[::1] ys,

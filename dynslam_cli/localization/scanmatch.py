@@ -369,7 +369,11 @@ def thin(points: np.ndarray, cell: float) -> np.ndarray:
 def cell_means(points: np.ndarray, cell: float) -> np.ndarray:
     """The mean of the points (N×2) in each ``cell`` square, in order of each square's
     first point."""
-    return _match.cell_means(np.ascontiguousarray(points, dtype=np.float64), cell)
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    group, first = _match.cell_groups(points, cell)
+    sums = np.column_stack([np.bincount(group, weights=points[:, k], minlength=len(first))
+                            for k in (0, 1)])
+    return sums / np.bincount(group, minlength=len(first))[:, None]
 
 
 class WheelOdometry:
