@@ -83,8 +83,8 @@ class ChangeRecorder:
         self._sightings = array("d")
         self._cleared = array("q")  # flat index of each cell D held Occupied, crossed ...
         self._cleared_scan = array("i")  # ... the scan that crossed it ...
-        self._cleared_fresh = array("b")  # ... and whether an object stood on it since it
-        # was last cleared (:meth:`_note_cleared`)
+        self._cleared_stood = array("b")  # ... and whether an object stood on it since it
+        # was last cleared, or it never was (:meth:`_note_cleared`)
         self._standing_from = np.zeros(0, np.float32)
         """Per cell (flat index): when a beam first ended there where S^{t-1} was Free (an
         object seen there) since the cell was last cleared, in seconds from the first scan;
@@ -155,9 +155,9 @@ class ChangeRecorder:
 
     def _note_cleared(self, cleared: np.ndarray, hit: np.ndarray, scan: int) -> None:
         """One scan's cells D held Occupied that a beam crossed, and its cells hit where
-        S^{t-1} was Free. Each clearing is recorded as fresh where the cell was never
-        cleared before, or where an object was seen standing on it for ``still_s`` since it
-        last was (how often it was cleared before is :func:`_episodes`' to weigh)."""
+        S^{t-1} was Free. Each clearing is recorded with whether the cell was never cleared
+        before or an object was seen standing on it for ``still_s`` since it last was (how
+        often it was cleared before is :func:`_episodes`' to weigh)."""
         n = len(self.grids.layers["static"])
         if len(self._standing_from) < n:
             self._standing_from = _grown(self._standing_from, n, -np.inf)
@@ -165,9 +165,9 @@ class ChangeRecorder:
         start, end = self._standing_from, self._standing_to
         if len(cleared):
             _add(self._cleared, self._cleared_scan, scan, cleared)
-            fresh = np.isneginf(start[cleared]) | (
+            stood = np.isneginf(start[cleared]) | (
                 end[cleared] - start[cleared] >= self.config.still_s)
-            self._cleared_fresh.frombytes(fresh.astype(np.int8).tobytes())
+            self._cleared_stood.frombytes(stood.astype(np.int8).tobytes())
             start[cleared] = np.inf
         now = np.float32(self.stamps[-1] - self.stamps[0])
         start[hit[np.isposinf(start[hit])]] = now
@@ -232,12 +232,12 @@ class ChangeRecorder:
 
     def clearings(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
-        indices, scans, and whether an object stood on each since it was last cleared
-        (:meth:`_note_cleared`)."""
+        indices, scans, and whether an object stood on each since it was last cleared, or it
+        never was (:meth:`_note_cleared`)."""
         cells = np.frombuffer(self._cleared, np.int64)
         scans = np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
-        fresh = np.frombuffer(self._cleared_fresh, np.int8).astype(bool)
-        return self.grids.cell_centres(cells), cells, scans, fresh
+        stood = np.frombuffer(self._cleared_stood, np.int8).astype(bool)
+        return self.grids.cell_centres(cells), cells, scans, stood
 
     def rising(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells hit where S did not yet hold them Occupied (nor Free around them), and the
@@ -437,7 +437,7 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
         return []
     config, res = recorder.config, recorder.grids.resolution
     stamps = np.asarray(recorder.stamps)
-    cleared_xy, cleared_cells, cleared_scans, cleared_fresh = recorder.clearings()
+    cleared_xy, cleared_cells, cleared_scans, cleared_stood = recorder.clearings()
     groups = _box_groups(np.array([(b[:, X0].min(), b[:, Y0].min(), b[:, X1].max(),
                                     b[:, Y1].max()) for b in still]), config.merge_distance_m)
     out = []
@@ -450,7 +450,7 @@ def _standing_objects(recorder: ChangeRecorder, still: list[np.ndarray]) -> list
                   & (cleared_xy[:, 1] >= y0) & (cleared_xy[:, 1] <= y1))
         enough = max(config.min_area_m2 / res ** 2, float(np.median(b[:, CELLS])) / 2)
         for episode, gone in _episodes(seen, cleared_cells[inside], cleared_scans[inside],
-                                       cleared_fresh[inside], enough, stamps,
+                                       cleared_stood[inside], enough, stamps,
                                        config.still_s, recorder.passes_to_leave):
             sightings = b[np.isin(b[:, SCAN], episode)]
             t = stamps[episode]
@@ -493,21 +493,21 @@ def _steady(sighted: np.ndarray, stamps: np.ndarray, still_s: float) -> bool:
     return bool(np.any(2 * (j - i + 1) >= scans))
 
 
-def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, fresh: np.ndarray,
+def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, stood: np.ndarray,
               enough: float, stamps: np.ndarray, still_s: float, contested: int
               ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Split a place's sighting scans (sorted) where, between two sightings, beams cleared
     ``enough`` of its cells in scans that did not see the object there, each cell not
     cleared before since the run of sightings began (a beam past a standing object's edge,
     or along a face it grazes, clears the same cells again and again), or cleared at most
-    ``contested`` times and seen standing since (``fresh``,
+    ``contested`` times and seen standing since (``stood``,
     :meth:`ChangeRecorder._note_cleared`: a face crossed while the object arrived counts
     again); and where the place then stayed so for ``still_s`` (by the scans' ``stamps``:
     seen again sooner, it had not gone). Each run of sightings and, if it ended so, the
     scans that saw it gone (from the one that brought the count to ``enough`` to the next
     sighting)."""
     order = np.argsort(scans, kind="stable")
-    cells, scans, fresh = cells[order], scans[order], fresh[order]
+    cells, scans, stood = cells[order], scans[order], stood[order]
     cut = np.searchsorted(seen, scans, side="right")  # sightings up to each clearing
     bounds = np.flatnonzero(np.diff(cut, prepend=-1, append=-1))  # (runs of one gap)
     unseen = ~np.isin(scans, seen)  # (not a scan that saw the object there)
@@ -522,7 +522,7 @@ def _episodes(seen: np.ndarray, cells: np.ndarray, scans: np.ndarray, fresh: np.
             continue
         here = cells[a:b]
         cleared = before[a:b] - _earlier_count(keys, here, np.full(b - a, since), len(cells))
-        counted = unseen[a:b] & ((cleared == 0) | (fresh[a:b] & (cleared <= contested)))
+        counted = unseen[a:b] & ((cleared == 0) | (stood[a:b] & (cleared <= contested)))
         new = np.unique(here[counted], return_index=True)[1]
         if len(new) >= enough:
             reached = np.sort(new)[math.ceil(enough) - 1]
