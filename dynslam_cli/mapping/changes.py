@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from dynslam_cli.mapping import _changes, _grid
-from dynslam_cli.mapping.grid import GridStack, Observation, logit, steps
+from dynslam_cli.mapping.grid import TILE, GridStack, Observation, logit, steps
 from dynslam_cli.sections import ChangeConfig, MapConfig
 
 KINDS = ("appeared", "vacated", "moving", "removed_since_prior", "added_since_prior")
@@ -85,12 +85,11 @@ class ChangeRecorder:
         self._cleared_scan = array("i")  # ... the scan that crossed it ...
         self._cleared_stood = array("b")  # ... and whether an object stood on it since it
         # was last cleared, or it never was (:meth:`_note_cleared`)
-        self._standing_from = np.zeros(0, np.float32)
-        """Per cell (flat index): when a beam first ended there where S^{t-1} was Free (an
-        object seen there) since the cell was last cleared, in seconds from the first scan;
-        -inf if it was never cleared, +inf if nothing was seen there since it was."""
-        self._standing_to = np.zeros(0, np.float32)
-        """... and when one last did."""
+        self._standing = TileTimes(-np.inf)
+        """Per cell: when a beam first ended there where S^{t-1} was Free (an object seen
+        there) since the cell was last cleared, in seconds from the first scan (-inf if it
+        was never cleared, +inf if nothing was seen there since it was), and when one last
+        did; kept for the tiles where D ever held something."""
         self._crossed = array("q")  # flat index of each crossed cell ...
         self._crossed_scan = array("i")  # ... and the scan that crossed it
         self._rising = array("q")  # flat index of each cell hit where S is not Occupied ...
@@ -158,20 +157,18 @@ class ChangeRecorder:
         S^{t-1} was Free. Each clearing is recorded with whether the cell was never cleared
         before or an object was seen standing on it for ``still_s`` since it last was (how
         often it was cleared before is :func:`_episodes`' to weigh)."""
-        n = len(self.grids.layers["static"])
-        if len(self._standing_from) < n:
-            self._standing_from = _grown(self._standing_from, n, -np.inf)
-            self._standing_to = _grown(self._standing_to, n, -np.inf)
-        start, end = self._standing_from, self._standing_to
+        times = self._standing
         if len(cleared):
             _add(self._cleared, self._cleared_scan, scan, cleared)
-            stood = np.isneginf(start[cleared]) | (
-                end[cleared] - start[cleared] >= self.config.still_s)
+            start, end = times.get(cleared)
+            stood = np.isneginf(start) | (end - start >= self.config.still_s)
             self._cleared_stood.frombytes(stood.astype(np.int8).tobytes())
-            start[cleared] = np.inf
-        now = np.float32(self.stamps[-1] - self.stamps[0])
-        start[hit[np.isposinf(start[hit])]] = now
-        end[hit] = now
+            times.set(cleared, 0, np.inf)
+        if len(hit):
+            now = np.float32(self.stamps[-1] - self.stamps[0])
+            start, _ = times.get(hit)
+            times.set(hit[np.isposinf(start)], 0, now)
+            times.set(hit, 1, now)
 
     def _note_first_free(self, cells: np.ndarray, scan: int) -> None:
         if len(self._first_free) < len(self.grids.layers["static"]):
@@ -249,6 +246,48 @@ class ChangeRecorder:
         """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
         return (np.frombuffer(self._crossed, np.int64),
                 np.frombuffer(self._crossed_scan, np.int32).astype(np.int64))
+
+
+class TileTimes:
+    """Two float32 values per grid cell (by flat index: tile · TILE² + place), stored only
+    for the tiles where one was set (a map's D touches few of them: the campus's 1.75 km,
+    15 million cells, would take 123 MB for every cell); ``fill`` elsewhere."""
+
+    def __init__(self, fill: float) -> None:
+        self._fill = fill
+        self._slot = np.full(0, -1, np.int64)  # per tile: its block, -1 none
+        self._blocks = np.zeros((0, 2, TILE * TILE), np.float32)
+        self._used = 0
+
+    def get(self, flat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Both values of the cells ``flat``."""
+        tile, place = np.divmod(flat, TILE * TILE)
+        slot = np.full(len(flat), -1)
+        known = tile < len(self._slot)
+        slot[known] = self._slot[tile[known]]
+        held = slot >= 0
+        out = np.full((2, len(flat)), self._fill, np.float32)
+        out[:, held] = self._blocks[slot[held], :, place[held]].T
+        return out[0], out[1]
+
+    def set(self, flat: np.ndarray, which: int, value: float) -> None:
+        """Value ``which`` (0 or 1) of the cells ``flat`` set to ``value``."""
+        if len(flat) == 0:
+            return
+        tile, place = np.divmod(flat, TILE * TILE)
+        if tile.max() >= len(self._slot):
+            self._slot = np.concatenate(
+                [self._slot, np.full(int(tile.max()) + 1 - len(self._slot), -1)])
+        new = np.unique(tile[self._slot[tile] < 0])
+        if len(new):
+            if self._used + len(new) > len(self._blocks):
+                grown = np.full((2 * (self._used + len(new)), 2, TILE * TILE), self._fill,
+                                np.float32)
+                grown[:self._used] = self._blocks[:self._used]
+                self._blocks = grown
+            self._slot[new] = np.arange(self._used, self._used + len(new))
+            self._used += len(new)
+        self._blocks[self._slot[tile], which, place] = value
 
 
 def _grown(values: np.ndarray, n: int, fill: float) -> np.ndarray:
