@@ -98,6 +98,36 @@ def test_one_scan_that_sees_through_a_standing_box_neither_ends_it_nor_blinds_it
     assert 5.0 <= events[0].first_s <= 5.2 and 25.0 <= events[1].first_s <= 25.3
 
 
+@pytest.mark.parametrize("face_y", [1.1, 1.125, 1.15, 1.175])
+def test_a_box_by_a_wall_first_seen_at_a_grazing_incidence_is_vacated_when_it_goes(face_y):
+    """A robot drives along a corridor past a 0.4 m box standing at its wall (seen first
+    at a shallow incidence, where beams run along the face for cells before ending in it),
+    then back after the box was taken away: the place is vacated wherever the face lies on
+    the grid's rows (before, a face centred on a row was worn by those grazing beams into a
+    "contested" one and no event came)."""
+    from dynslam_cli.simulate import ray_cast
+
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    walls = [(-2.0, 1.5, 14.0, 1.5), (-2.0, -1.5, 14.0, -1.5), (-2.0, -1.5, -2.0, 1.5),
+             (14.0, -1.5, 14.0, 1.5)]
+    box = [(4.0, face_y, 4.4, face_y), (4.0, face_y, 4.0, 1.5), (4.4, face_y, 4.4, 1.5)]
+    rng = np.random.default_rng(0)
+    slam = DynamicSlam(Config(ekf=EkfConfig(localization="odometry")))
+    for k in range(400):
+        t = k / RATE
+        pose = Pose2D(0.5 * t, 0.0, 0.0) if t < 20 else Pose2D(10.0 - 0.5 * (t - 20), 0.0,
+                                                                np.pi)
+        segments = np.array(walls + (box if t < 20 else []))
+        ranges, owner = ray_cast(pose, angles, segments, np.full(len(segments), -1),
+                                 np.zeros((0, 3)), np.zeros(0, np.int64), 8.0)
+        ranges = np.where(owner == -2, ranges, ranges + rng.normal(0.0, 0.01, len(angles)))
+        slam.step(Scan(stamp=t, ranges=ranges, angles=angles, max_range=8.0, odom=pose))
+    events = slam.result().changes
+    assert [e.kind for e in events] == ["vacated"]
+    assert 20.0 <= events[0].first_s <= 21.0
+    assert abs(events[0].x - 4.2) <= 0.3 and abs(events[0].y - (face_y + 1.5) / 2) <= 0.3
+
+
 def test_without_the_dynamic_map_there_are_no_events():
     config = load_config(overrides={"ekf": {"localization": "odometry"},
                                     "dynamic": {"enabled": False}})

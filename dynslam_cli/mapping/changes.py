@@ -54,6 +54,13 @@ PATH_SMOOTH_S = 1.0
 PATH_STEP_M = 0.1
 
 
+# A place S held is an object gone only if this share of its cells were seen standing for
+# ``still_s`` (hit while S held them that long after they were first hit): a walker's trail,
+# mapped where nothing was mapped yet, is seen for about a second per cell, a box for
+# seconds in most of its cells (drifting odometry, local maps of 64 and 128 key scans: the
+# quarter of cells seen longest, at most 0.9 s in the hall's seven walker trails and at
+# least 4.6 s in the boxes of the corridors, the arena and the hall).
+SEEN_STANDING_SHARE = 0.25
 COMPACT_AT = 1 << 18  # records of crossed and rising cells kept before compacting them
 
 # A blob's record: its scan's index, centroid x y, bounding box x0 y0 x1 y1, cell count.
@@ -90,12 +97,12 @@ class ChangeRecorder:
         there) since the cell was last cleared, in seconds from the first scan (-inf if it
         was never cleared, +inf if nothing was seen there since it was), and when one last
         did; kept for the tiles where D ever held something."""
-        self._crossed = array("q")  # flat index of each crossed cell ...
-        self._crossed_scan = array("i")  # ... and the scan that crossed it
-        self._rising = array("q")  # flat index of each cell hit where S is not Occupied ...
-        self._rising_scan = array("i")  # ... (but not Free around it) and the scan
+        self._crossed = Records()  # cells S held Occupied that a beam crossed cleanly ...
+        self._grazed = Records()  # ... or grazed (:func:`_beside`), each with its scan
+        self._rising = Records()  # cells hit where S did not yet hold them Occupied
+        self._held = Records()  # cells hit where S held them Occupied
         self.contested = np.zeros(0, np.int64)
-        """Cells crossed more often than ``passes_to_leave`` (sorted): never a place
+        """Cells crossed cleanly more often than ``passes_to_leave`` (sorted): never a place
         vacated, so their records are let go (:meth:`compact`)."""
         self._compact_at = COMPACT_AT
         self._first_free = np.zeros(0, np.int32)
@@ -143,13 +150,18 @@ class ChangeRecorder:
             self._note_cleared(_grid.cells_above(grids.layers["dynamic"].reshape(-1),
                                                  obs.free, self._occupied),
                                obs.hit[hit_on_free], scan)
-        _add(self._crossed, self._crossed_scan, scan,
-             _grid.cells_above(static, obs.free, self._occupied))
-        _add(self._rising, self._rising_scan, scan,
-             _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied, False))
+        crossed = _grid.cells_above(static, obs.free, self._occupied)
+        held = _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied)
+        grazed = _beside(grids, crossed, held)
+        self._crossed.add(scan, crossed[~grazed])
+        self._grazed.add(scan, crossed[grazed])
+        self._rising.add(scan, _grid.cells_above(static, obs.hit[~hit_on_free],
+                                                 self._occupied, False))
+        self._held.add(scan, held)
         if grids.seeded:
             self._note_first_free(obs.free, scan)
-        if len(self._crossed) + len(self._rising) >= self._compact_at:
+        if sum(map(len, (self._crossed, self._grazed, self._rising, self._held))) \
+                >= self._compact_at:
             self.compact()
 
     def _note_cleared(self, cleared: np.ndarray, hit: np.ndarray, scan: int) -> None:
@@ -159,7 +171,7 @@ class ChangeRecorder:
         often it was cleared before is :func:`_episodes`' to weigh)."""
         times = self._standing
         if len(cleared):
-            _add(self._cleared, self._cleared_scan, scan, cleared)
+            _append(self._cleared, self._cleared_scan, scan, cleared)
             start, end = times.get(cleared)
             stood = np.isneginf(start) | (end - start >= self.config.still_s)
             self._cleared_stood.frombytes(stood.astype(np.int8).tobytes())
@@ -197,31 +209,43 @@ class ChangeRecorder:
 
     def compact(self) -> None:
         """Let go of what can no longer make an event, so memory follows the cells, not the
-        length of the log: the crossings of contested cells (remembered as such), and of
-        each cell's rises all but the last before its first crossing."""
-        cells, scans = self.crossed()
+        length of the log: every record of a contested cell (remembered as such), of each
+        cell's hits while Occupied all but the last, of its rises all but the first, and
+        its grazes before that last hit."""
+        cells, scans = self._crossed.arrays()
         unique, times = np.unique(cells, return_counts=True)
         self.contested = np.union1d(self.contested, unique[times > self.passes_to_leave])
         keep = ~np.isin(cells, self.contested)
-        cells, scans = cells[keep], scans[keep]
-        unique = np.unique(cells)
-        first = np.full(len(unique), np.iinfo(np.int64).max)
-        np.minimum.at(first, np.searchsorted(unique, cells), scans)
-        rising, rising_scans = self.rising()
-        at = np.minimum(np.searchsorted(unique, rising), max(len(unique) - 1, 0))
-        limit = (np.where(unique[at] == rising, first[at], np.iinfo(np.int64).max)
-                 if len(unique) else np.full(len(rising), np.iinfo(np.int64).max))
-        ok = (rising_scans < limit) & ~np.isin(rising, self.contested)
-        rising, rising_scans = rising[ok], rising_scans[ok]
-        order = np.lexsort((rising_scans, rising))
-        is_last = np.ones(len(order), bool)  # (none where nothing rose: a log of no returns)
-        is_last[:-1] = rising[order][1:] != rising[order][:-1]
-        last = order[is_last]
-        self._crossed, self._crossed_scan = array("q", cells.tobytes()), array("i")
-        self._crossed_scan.frombytes(scans.astype(np.int32).tobytes())
-        self._rising, self._rising_scan = array("q", rising[last].tobytes()), array("i")
-        self._rising_scan.frombytes(rising_scans[last].astype(np.int32).tobytes())
-        self._compact_at = max(COMPACT_AT, 2 * (len(self._crossed) + len(self._rising)))
+        self._crossed.set(cells[keep], scans[keep])
+        self._held.set(*self._one_per_cell(*self._held.arrays(), last=True))
+        self._rising.set(*self._one_per_cell(*self._rising.arrays(), last=False))
+        cells, scans = self._grazed.arrays()
+        keep = ~np.isin(cells, self.contested) & (scans > self.last_held(cells))
+        self._grazed.set(cells[keep], scans[keep])
+        self._compact_at = max(COMPACT_AT, 2 * sum(map(len, (
+            self._crossed, self._grazed, self._rising, self._held))))
+
+    def _one_per_cell(self, cells: np.ndarray, scans: np.ndarray, last: bool
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Of records (cells, scans), each uncontested cell's ``last`` (else first), by
+        cell."""
+        ok = ~np.isin(cells, self.contested)
+        cells, scans = cells[ok], scans[ok]
+        order = np.lexsort((scans if last else -scans, cells))
+        is_last = np.ones(len(order), bool)  # (none where nothing was: a log of no returns)
+        is_last[:-1] = cells[order][1:] != cells[order][:-1]
+        return cells[order[is_last]], scans[order[is_last]]
+
+    def last_held(self, cells: np.ndarray) -> np.ndarray:
+        """Each cell's last scan that hit it while S held it Occupied (-1: none); after
+        :meth:`compact`."""
+        return _lookup(*self._held.arrays(), cells)
+
+    def first_rise(self, cells: np.ndarray) -> np.ndarray:
+        """Each cell's first scan that hit it while S did not yet hold it Occupied (since
+        when what stood there stood; -1: none, it stood in the prior's map); after
+        :meth:`compact`."""
+        return _lookup(*self._rising.arrays(), cells)
 
     def sightings(self) -> np.ndarray:
         """Every sighting (N × BLOB_FIELDS), in scan order."""
@@ -236,16 +260,39 @@ class ChangeRecorder:
         stood = np.frombuffer(self._cleared_stood, np.int8).astype(bool)
         return self.grids.cell_centres(cells), cells, scans, stood
 
-    def rising(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cells hit where S did not yet hold them Occupied (nor Free around them), and the
-        scan of each: how a place came into S."""
-        return (np.frombuffer(self._rising, np.int64),
-                np.frombuffer(self._rising_scan, np.int32).astype(np.int64))
-
     def crossed(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cells S held Occupied that a beam crossed (flat indices), and the scan of each."""
-        return (np.frombuffer(self._crossed, np.int64),
-                np.frombuffer(self._crossed_scan, np.int32).astype(np.int64))
+        """Cells S held Occupied that a beam crossed cleanly (flat indices), and the scan of
+        each."""
+        return self._crossed.arrays()
+
+    def grazed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cells S held Occupied that a beam grazed (:func:`_beside`), and the scan of each
+        (after :meth:`compact`: those after the cell was last hit)."""
+        return self._grazed.arrays()
+
+
+class Records:
+    """Cells (flat indices) with the scan that recorded each, appended scan by scan."""
+
+    def __init__(self) -> None:
+        self._cells = array("q")
+        self._scans = array("i")
+
+    def __len__(self) -> int:
+        return len(self._cells)
+
+    def add(self, scan: int, cells: np.ndarray) -> None:
+        _append(self._cells, self._scans, scan, cells)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The cells and their scans (int64 each)."""
+        return (np.frombuffer(self._cells, np.int64),
+                np.frombuffer(self._scans, np.int32).astype(np.int64))
+
+    def set(self, cells: np.ndarray, scans: np.ndarray) -> None:
+        """Keep only these records."""
+        self._cells = array("q", cells.astype(np.int64).tobytes())
+        self._scans = array("i", scans.astype(np.int32).tobytes())
 
 
 class TileTimes:
@@ -297,7 +344,7 @@ def _grown(values: np.ndarray, n: int, fill: float) -> np.ndarray:
     return grown
 
 
-def _add(cells: array, scans: array, scan: int, new: np.ndarray) -> None:
+def _append(cells: array, scans: array, scan: int, new: np.ndarray) -> None:
     """Cells (flat indices) a scan recorded, appended with its index."""
     if len(new):
         cells.frombytes(new.astype(np.int64, copy=False).tobytes())
@@ -580,18 +627,30 @@ def _earlier_count(keys: np.ndarray, cells: np.ndarray, at: np.ndarray, n: int) 
     return np.searchsorted(keys, cells * n + at) - np.searchsorted(keys, cells * n)
 
 
-def _last_rise(recorder: ChangeRecorder, cells: np.ndarray, before: np.ndarray
-               ) -> np.ndarray:
-    """For each cell, the last scan before ``before`` (its scan) that hit it while S did not
-    yet hold it Occupied: since when what stood there had stood; -1 if none did."""
-    rising, scans = recorder.rising()
-    span = len(recorder.stamps) + 1
-    keys = np.sort(rising * span + scans)  # by cell, then scan
-    at = np.searchsorted(keys, cells * span + before) - 1
-    found = at >= 0
-    hit = keys[np.maximum(at, 0)]
-    found &= hit // span == cells
-    return np.where(found, hit % span, -1)
+def _lookup(cells: np.ndarray, values: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    """The value of each wanted cell among ``cells`` (sorted, each once) and their
+    ``values``; -1 where it is not there."""
+    at = np.minimum(np.searchsorted(cells, wanted), max(len(cells) - 1, 0))
+    found = (cells[at] == wanted) if len(cells) else np.zeros(len(wanted), bool)
+    return np.where(found, values[at] if len(cells) else -1, -1)
+
+
+NEIGHBOURS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)], np.int64)
+
+
+def _beside(grids: GridStack, cells: np.ndarray, hit: np.ndarray) -> np.ndarray:
+    """Which of ``cells`` (flat) touch a cell of ``hit`` (flat; where the same scan's beams
+    ended on S's Occupied cells), sides and corners: a beam that passes such a cell grazes
+    the surface the others ended on (at a shallow incidence a beam runs along a face for
+    several cells before it ends in it)."""
+    if not len(cells) or not len(hit):
+        return np.zeros(len(cells), bool)
+    rows, cols = grids.world_cells(cells)
+    keys = np.sort(_cell_keys(*grids.world_cells(hit)))
+    around = (_cell_keys(rows, cols)[None, :]
+              + (NEIGHBOURS[:, 0, None] << 32) + NEIGHBOURS[:, 1, None]).ravel()
+    at = np.minimum(np.searchsorted(keys, around), len(keys) - 1)
+    return (keys[at] == around).reshape(len(NEIGHBOURS), -1).any(axis=0)
 
 
 def standing_at_end(events: list[ChangeEvent]) -> tuple[tuple[float, float, float], ...]:
@@ -624,19 +683,24 @@ def _gone_since_prior(recorder: ChangeRecorder) -> list[ChangeEvent]:
 
 
 def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeEvent]:
-    """Places S held Occupied, crossed by beams at most ``passes_to_leave`` times each and
-    Free at the end, grouped by neighbourhood (cells ``merge_distance_m`` apart): a static
-    object gone, seen so when half its cells had been crossed; ``removed_since_prior`` where
-    S held it from an earlier session's map (``--prior``) and this run never saw it come.
-    A place a mover was seen beside when it went is that mover's trail, not an event."""
+    """Places S held Occupied, crossed cleanly by beams at most ``passes_to_leave`` times
+    each over the run, Free at the end, and since they were last hit crossed cleanly and
+    never grazed (a wall's face that grazing beams wore away is no place vacated), grouped
+    by neighbourhood (cells ``merge_distance_m`` apart): a static object gone, seen so when
+    half its cells had been crossed since; ``removed_since_prior`` where S held it from an
+    earlier session's map (``--prior``) and this run never saw it come. A place a mover was
+    seen beside when it went is that mover's trail, not an event; one not seen standing for
+    ``still_s`` in enough of its cells is a mover that went into S unmapped."""
     config, grids = recorder.config, recorder.grids
-    recorder.compact()
+    recorder.compact()  # (no contested cell left: each crossed at most passes_to_leave times)
     cells, scans = recorder.crossed()
+    since = scans > recorder.last_held(cells)  # (the crossings since it was last hit)
+    cells, scans = cells[since], scans[since]
     if not len(cells):
         return []
-    unique, which, times = np.unique(cells, return_inverse=True, return_counts=True)
+    unique, which = np.unique(cells, return_inverse=True)
     gone = ((grids.layers["static"].reshape(-1)[unique] < recorder.free_limit)
-            & (times <= recorder.passes_to_leave))  # (compacted: no contested cell left)
+            & ~np.isin(unique, recorder.grazed()[0]))
     if not gone.any():
         return []
     rows, cols = grids.world_cells(unique[gone])
@@ -648,11 +712,14 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
     first_crossed = np.full(len(unique), np.iinfo(np.int64).max)
     np.minimum.at(first_crossed, which, scans)
     first_crossed = first_crossed[gone]
-    entered = _last_rise(recorder, unique[gone], first_crossed)
+    entered = recorder.first_rise(unique[gone])
+    held = recorder.last_held(unique[gone])
+    stamps = np.asarray(recorder.stamps)
+    watched = np.where(entered < 0, math.inf, np.where(
+        held > entered, stamps[held] - stamps[entered], 0.0))
     group_of = np.full(len(unique), -1, np.int64)
     group_of[gone] = groups
     record_group = group_of[which]
-    stamps = np.asarray(recorder.stamps)
     out = []
     for g in range(groups.max() + 1):
         members = groups == g
@@ -663,16 +730,14 @@ def _vacated_static(recorder: ChangeRecorder, trail: np.ndarray) -> list[ChangeE
         x, y = (cols[members].mean() + 0.5) * res, (rows[members].mean() + 0.5) * res
         # seen gone from when half its cells had been crossed
         first = float(stamps[np.sort(first_crossed[members])[members.sum() // 2]])
-        since = entered[members]
-        since = since[since >= 0]
-        stood = first - float(stamps[int(np.median(since))]) if len(since) else math.inf
-        if stood < config.still_s:
-            continue  # (a mover that had stood in a place not yet mapped)
+        if np.quantile(watched[members], 1.0 - SEEN_STANDING_SHARE) < config.still_s:
+            continue  # (a mover that went into S where nothing was mapped yet)
         last = float(stamps[seen[-1]])
         near = np.abs(trail[:, 0] - first) <= config.track_gap_s
         if np.any(np.hypot(trail[near, 1] - x, trail[near, 2] - y) <= config.track_gate_m):
             continue  # (a mover's trail)
         # no cell of it came into S in this run: it stood there in the prior's map
-        kind = "removed_since_prior" if grids.seeded and not len(since) else "vacated"
+        kind = ("removed_since_prior" if grids.seeded and (entered[members] < 0).all()
+                else "vacated")
         out.append(ChangeEvent(0, kind, first, last, float(x), float(y), area, len(seen)))
     return out
