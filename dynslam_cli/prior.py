@@ -45,7 +45,12 @@ SEARCH_CELLS = 3  # the search takes one end point per square of this many cells
 # were taken for objects removed).
 REFINE_TRAVEL_M = 2.0
 OUTLIER_SHARE = 0.1  # an end point is not on the map's walls (a person, a moved box) ...
-EFFECTIVE_POINTS = 40.0  # ... and a scan's end points err together, as this many at most
+EFFECTIVE_POINTS = 40.0  # ... and a scan's end points err together, as this many at most;
+# end points within a square of this side (m) lie on one stretch of wall and err together:
+# a cloud of scans driven over metres counts one per square it covers (the hall world's
+# second session: one scan covers 26, after 20 m 89 and after 40 m 111; without this, a
+# placement ambiguous at the first scan stayed so, however far the robot drove)
+INDEPENDENT_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -257,7 +262,7 @@ class PriorSession:
         c = self.cfg
         likelier = None
         if c.rival_search == "likelihood":  # a rival matters within this of the best
-            likelier = (OUTLIER_SHARE, c.rival_evidence / _counted(len(points)))
+            likelier = (OUTLIER_SHARE, c.rival_evidence / _counted(points))
         return place(field, points, c.min_score, c.rival_m, c.rival_deg, c.rival_share, near,
                      likelier)
 
@@ -284,9 +289,12 @@ class PriorSession:
             return math.inf
         best = log_likelihood(field.values(points, found.pose), OUTLIER_SHARE)
         rival = log_likelihood(field.values(points, found.rival), OUTLIER_SHARE)
-        return float(np.mean(best - rival)) * _counted(len(points))
+        return float(np.mean(best - rival)) * _counted(points)
 
 
-def _counted(points: int) -> float:
-    """How many independent end points a cloud of ``points`` counts as."""
-    return min(points, EFFECTIVE_POINTS)
+def _counted(points: np.ndarray) -> float:
+    """How many independent end points a cloud (N×2) counts as: one scan's as at most
+    EFFECTIVE_POINTS; the scans driven after it see other walls, and a cloud counts one
+    per square of INDEPENDENT_M it covers where that is more."""
+    covered = len(np.unique(np.floor(points / INDEPENDENT_M).astype(np.int64), axis=0))
+    return float(min(len(points), max(EFFECTIVE_POINTS, covered)))

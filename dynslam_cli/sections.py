@@ -747,8 +747,9 @@ class PriorConfig:
     away, or turned ``rival_deg``), or the placement is ambiguous (a symmetric room, a row
     of like offices): an error, unless ``--initial-pose`` says which. The likelihood of a
     place: each end point near a wall with the field's spread or, with probability 0.1, an
-    outlier, the points counting as at most 40 independent ones (neighbouring beams see
-    the same wall). 4.6: a hundred times."""
+    outlier, the points counting as at most 40 independent ones for one scan (neighbouring
+    beams see the same wall) and, for the scans driven after it, as one per square metre
+    of the map they cover where that is more. 4.6: a hundred times."""
     rival_share: float = 0.75
     """With ``rival_search = "score"``: other places scoring below this share of the best
     (the mean field value at the end points) are not looked for."""

@@ -89,6 +89,30 @@ def test_two_sessions_the_second_placed_in_the_first_and_its_changes_found(tmp_p
         assert sessions[kind]["recall"] == 1.0 and sessions[kind]["precision"] == 1.0, sessions
 
 
+def test_a_second_session_whose_first_scans_fit_many_places_is_placed_as_it_drives_on(
+        tmp_path: Path, cli) -> None:
+    """The corridors world is a ring of look-alike corridors: the second session's first
+    scans fit several places, and so did every cloud of the scans driven after them while
+    a cloud's end points counted as 40 independent ones however many walls they covered
+    (refused after 40 m, the best place e^2.9 as likely as its rival). Counted by the
+    squares of wall they cover, the scans of the whole drive tell the places apart."""
+    made = cli("simulate", "corridors", "-o", tmp_path / "sim", "--sessions", "2",
+               "--duration", "150")
+    assert made.exit_code == 0, made.output
+    first, second = (Path(p) for p in made.stdout.split())
+    assert cli("process", first, "-o", tmp_path / "day1", "-q").exit_code == 0
+    run = cli("process", second, "-o", tmp_path / "day2", "-q", "--prior", tmp_path / "day1")
+    assert run.exit_code == 0, run.output
+    placed = json.loads((tmp_path / "day2" / "summary.json").read_text())
+    assert placed["localization"]["prior"]["driven_m"] > 10  # (not from the first scans)
+    report = json.loads(cli("evaluate", tmp_path / "day2", "--truth",
+                            second.parent / "truth.json", "--json").stdout)
+    sessions = report["truth"]["sessions"]
+    assert sessions["ate_in_prior_frame_m"] < 0.1  # (the ring's other places: metres off)
+    for kind in ("removed_since_prior", "added_since_prior"):
+        assert sessions[kind]["recall"] == 1.0 and sessions[kind]["precision"] == 1.0, sessions
+
+
 def test_stop_and_go_walkers_stand_still_after_every_few_metres(cli, tmp_path: Path) -> None:
     """``simulate --stop-and-go S``: each walker walks PAUSE_EVERY_M, stands S seconds, walks
     on (issue: a person who stops and walks on); its truth says so."""
