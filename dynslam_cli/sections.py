@@ -778,7 +778,8 @@ class PriorConfig:
     """Once the scans put together to place a log span this long (seconds), an end point
     enters the search only where the scans saw something for at least this long (within
     one search square, 3 cells): a wall is seen scan after scan, a walker passes. 0: every
-    end point. Off: measured with 1 s on bench/sessions.py, seeds 0 and 1, it places the
+    end point. Off: measured with 1 s on bench/sessions.py, seeds 0 and 1, before the
+    evidence grew with the drive (dcaad9f: 10 of 10 placed without it), it places the
     hall's second session of seed 1 (refused without: e^3.0 after 40 m) but no longer the
     corridors' (e^3.7), 8 of 10 either way; MIT CSAIL's second half is placed as without
     it (after 5.2 m, the same pose to 6 µm)."""
