@@ -88,8 +88,7 @@ class ChangeRecorder:
         vacated."""
         self.stamps = array("d")  # per scan
         self._sightings = array("d")
-        self._cleared = array("q")  # flat index of each cell D held Occupied, crossed ...
-        self._cleared_scan = array("i")  # ... the scan that crossed it ...
+        self._cleared = Records()  # cells D held Occupied that a beam crossed, the scan ...
         self._cleared_stood = array("b")  # ... and whether an object stood on it since it
         # was last cleared, or it never was (:meth:`_note_cleared`)
         self._standing = TileTimes(-np.inf)
@@ -151,12 +150,12 @@ class ChangeRecorder:
                                                  obs.free, self._occupied),
                                obs.hit[hit_on_free], scan)
         crossed = _grid.cells_above(static, obs.free, self._occupied)
-        held = _grid.cells_above(static, obs.hit[~hit_on_free], self._occupied)
+        hits = obs.hit[~hit_on_free]
+        held = _grid.cells_above(static, hits, self._occupied)
         grazed = _beside(grids, crossed, held)
         self._crossed.add(scan, crossed[~grazed])
         self._grazed.add(scan, crossed[grazed])
-        self._rising.add(scan, _grid.cells_above(static, obs.hit[~hit_on_free],
-                                                 self._occupied, False))
+        self._rising.add(scan, _grid.cells_above(static, hits, self._occupied, False))
         self._held.add(scan, held)
         if grids.seeded:
             self._note_first_free(obs.free, scan)
@@ -171,7 +170,7 @@ class ChangeRecorder:
         often it was cleared before is :func:`_episodes`' to weigh)."""
         times = self._standing
         if len(cleared):
-            _append(self._cleared, self._cleared_scan, scan, cleared)
+            self._cleared.add(scan, cleared)
             start, end = times.get(cleared)
             stood = np.isneginf(start) | (end - start >= self.config.still_s)
             self._cleared_stood.frombytes(stood.astype(np.int8).tobytes())
@@ -255,8 +254,7 @@ class ChangeRecorder:
         """Cells D held Occupied that a beam crossed: their x, y (cell centres), flat
         indices, scans, and whether an object stood on each since it was last cleared, or it
         never was (:meth:`_note_cleared`)."""
-        cells = np.frombuffer(self._cleared, np.int64)
-        scans = np.frombuffer(self._cleared_scan, np.int32).astype(np.int64)
+        cells, scans = self._cleared.arrays()
         stood = np.frombuffer(self._cleared_stood, np.int8).astype(bool)
         return self.grids.cell_centres(cells), cells, scans, stood
 
@@ -282,7 +280,10 @@ class Records:
         return len(self._cells)
 
     def add(self, scan: int, cells: np.ndarray) -> None:
-        _append(self._cells, self._scans, scan, cells)
+        """The cells a scan recorded."""
+        if len(cells):
+            self._cells.frombytes(cells.astype(np.int64, copy=False).tobytes())
+            self._scans.frombytes(np.full(len(cells), scan, np.int32).tobytes())
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """The cells and their scans (int64 each)."""
@@ -342,13 +343,6 @@ def _grown(values: np.ndarray, n: int, fill: float) -> np.ndarray:
     grown = np.full(n, fill, values.dtype)
     grown[:len(values)] = values
     return grown
-
-
-def _append(cells: array, scans: array, scan: int, new: np.ndarray) -> None:
-    """Cells (flat indices) a scan recorded, appended with its index."""
-    if len(new):
-        cells.frombytes(new.astype(np.int64, copy=False).tobytes())
-        scans.frombytes(np.full(len(new), scan, np.int32).tobytes())
 
 
 def change_events(recorder: ChangeRecorder, landmarks: list[tuple[int, float, float]]
