@@ -67,10 +67,10 @@ def nees(log: Path, poses: list[Pose2D], config: Config) -> dict:
     """The matcher's increments over ``log``, scored against the increments of ``poses``
     (one per scan)."""
     matcher = ScanMatcher(config.match, config.ekf.noise)
-    source, _, reader = open_log(str(log), ReaderOptions())
+    source, _, reader = open_log(str(log), ReaderOptions(**config.laser.reader_options()))
     values, errors = [], []
     for k, scan in enumerate(reader.scans()):
-        inc, _, cov = matcher.increment(config.laser.limit(scan))
+        inc, _, cov = matcher.increment(scan)
         if k == 0 or cov is None:
             continue
         true = relative(poses[k - 1], poses[k])

@@ -147,7 +147,7 @@ def stale_reason(job: BatchItem) -> str | None:
         config = load_config(Path(job.config) if job.config else None, job.overrides)
     except (ConfigError, DynslamError):
         return None
-    options = ReaderOptions(**job.reader, **config.laser.geometry())
+    options = ReaderOptions(**job.reader, **config.laser.reader_options())
     wanted = json.loads(json.dumps(run_settings(job.log, options, config, job.format_name,
                                                 job.snapshots)))
     try:
@@ -192,7 +192,7 @@ def run_job(job: BatchItem) -> dict[str, Any]:
         from dynslam_cli.job import process_log
 
         config = load_config(Path(job.config) if job.config else None, job.overrides)
-        options = ReaderOptions(**job.reader, **config.laser.geometry())
+        options = ReaderOptions(**job.reader, **config.laser.reader_options())
         summary, _ = process_log(job.log, Path(job.output), job.force, options, config,
                                  job.format_name, job.snapshots, read_ahead=job.read_ahead)
         row.update(_figures(summary))

@@ -279,7 +279,7 @@ def process(log: str, output: Path | None, force: bool, format_name: str | None,
         config = _load(config_file, overrides)
         check_target(target, force, log)
         options = ReaderOptions(**_reader(laser, topic, odom_topic, start_s, end_s, max_scans),
-                                **config.laser.geometry())
+                                **config.laser.reader_options())
         session = None
         if prior is not None:
             from dynslam_cli.job import open_prior

@@ -108,10 +108,20 @@ def _coerce(value: Any, annotation: Any, where: str) -> Any:
     raise ConfigError(f"{where}: expected {names}, got {value!r}")
 
 
+_MOVED = {MatchConfig: {name: "[match.icp]" for name in (
+    "iterations", "max_correspondence_m", "min_correspondence_m", "effective_pairs",
+    "prior_as_pairs")}}
+"""Keys that left a section, and the section that holds them now."""
+
+
 def _build(cls: type, values: dict[str, Any], where: str) -> Any:
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(values) - known)
+    moved = _MOVED.get(cls, {})
+    for name in unknown:
+        if name in moved:
+            raise ConfigError(f"{where}: {name} is in {moved[name]} now")
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: "
                           f"{', '.join(sorted(known))}")

@@ -104,7 +104,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                                config.record.period_s, config.map, config.laser.min_range_m)
                      if config.record.file else None)
         ticks = array("d")
-        front = open_front_end(reader, source, config.laser, ScanMeasurer.configured(
+        front = open_front_end(reader, source, ScanMeasurer.configured(
             config.ekf, config.match, config.corners), read_ahead)
         try:
             def on_scan(i: int, scan: Any, slam: Any) -> None:
@@ -265,8 +265,7 @@ def checked_spacing(log: str, options: Any, format_name: str | None, config: Con
             return None  # (read no further)
         if on_phase is not None:
             on_phase("checking the spacing of the beams", 0, 0)
-        first_scans = [config.laser.limit(s)
-                       for s in itertools.chain([first], itertools.islice(scans, CHECK_SCANS - 1))]
+        first_scans = [*itertools.chain([first], itertools.islice(scans, CHECK_SCANS - 1))]
     finally:
         source.close()
     return check_spacing(first_scans, config.match, config.ekf.noise)

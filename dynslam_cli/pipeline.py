@@ -52,7 +52,7 @@ class DynamicSlam:
         self._measure = (front.measurement if front is not None else
                          ScanMeasurer.configured(config.ekf, config.match, config.corners))
         self._motion_sources: Counter[str] = Counter()
-        self._loops = (LoopCloser(config.loop, config.match, config.ekf.noise,
+        self._loops = (LoopCloser(config.loop, config.ekf.noise,
                                   prior.walls() if prior is not None else None)
                        if use_graph else None)
         self._store = ScanStore() if use_graph else None
@@ -78,7 +78,6 @@ class DynamicSlam:
 
     def step(self, scan: Scan) -> Pose2D:
         """Process one scan; returns the robot's pose in the map frame."""
-        scan = self.config.laser.limit(scan)  # (a front end has done it already)
         pose = self.localize(scan)
         self.mapper.integrate(pose, scan)
         self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))

@@ -23,7 +23,6 @@ from typing import TYPE_CHECKING, BinaryIO
 
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
-from dynslam_cli.sections import LaserConfig
 from dynslam_cli.types import Scan
 
 if TYPE_CHECKING:
@@ -35,17 +34,14 @@ PIPE_BYTES = 1 << 20
 
 
 class FrontEnd:
-    """The scans of ``reader``, each held to ``laser``'s limits, with what ``measure`` makes
-    of it, in this process. Iterate :meth:`scans`; :meth:`measurement` gives the measurement
-    of the scan last yielded, :meth:`progress` the bytes read so far and ``stats`` the
-    reader's counts."""
+    """The scans of ``reader``, each with what ``measure`` makes of it, in this process.
+    Iterate :meth:`scans`; :meth:`measurement` gives the measurement of the scan last
+    yielded, :meth:`progress` the bytes read so far and ``stats`` the reader's counts."""
 
-    def __init__(self, reader: LogReader, source: Source, laser: LaserConfig,
-                 measure: ScanMeasurer) -> None:
+    def __init__(self, reader: LogReader, source: Source, measure: ScanMeasurer) -> None:
         self._reader = reader
         self._source = source
         self._measure = measure
-        self._laser = laser
         self._scan: Scan | None = None
         self._measurement: Measurement | None = None
 
@@ -54,8 +50,7 @@ class FrontEnd:
         return self._reader.stats
 
     def scans(self) -> Iterator[Scan]:
-        for read in self._reader.scans():
-            scan = self._laser.limit(read)
+        for scan in self._reader.scans():
             self._scan, self._measurement = scan, self._measure(scan)
             yield scan
 
@@ -74,8 +69,7 @@ class ForkedFrontEnd:
     """:class:`FrontEnd` in a forked child process, running ahead (same interface). Call
     :meth:`close` when done: it stops the child if it is still running."""
 
-    def __init__(self, reader: LogReader, source: Source, laser: LaserConfig,
-                 measure: ScanMeasurer) -> None:
+    def __init__(self, reader: LogReader, source: Source, measure: ScanMeasurer) -> None:
         self.stats: ReadStats = reader.stats
         self._progress = (0, 0)
         self._scans: list[Scan] = []
@@ -92,7 +86,7 @@ class ForkedFrontEnd:
         self._running = True
         if self._pid == 0:  # the child: never returns
             os.close(read_end)
-            _child(FrontEnd(reader, source, laser, measure), write_end)
+            _child(FrontEnd(reader, source, measure), write_end)
         os.close(write_end)
         self._pipe: BinaryIO | None = os.fdopen(read_end, "rb")
 
@@ -196,14 +190,14 @@ def _picklable(e: Exception) -> Exception:
     return e
 
 
-def open_front_end(reader: LogReader, source: Source, laser: LaserConfig,
-                   measure: ScanMeasurer, read_ahead: bool = True) -> FrontEnd | ForkedFrontEnd:
+def open_front_end(reader: LogReader, source: Source, measure: ScanMeasurer,
+                   read_ahead: bool = True) -> FrontEnd | ForkedFrontEnd:
     """A :class:`ForkedFrontEnd` if ``read_ahead`` and it can be used, else a
     :class:`FrontEnd`."""
     if read_ahead and can_fork():
         with contextlib.suppress(OSError):  # no process to spare (a ulimit): work here
-            return ForkedFrontEnd(reader, source, laser, measure)
-    return FrontEnd(reader, source, laser, measure)
+            return ForkedFrontEnd(reader, source, measure)
+    return FrontEnd(reader, source, measure)
 
 
 def can_fork() -> bool:

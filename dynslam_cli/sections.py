@@ -9,12 +9,10 @@ them, read from TOML, is :class:`dynslam_cli.config.Config`.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from dynslam_cli.errors import ConfigError
-from dynslam_cli.types import Scan
 
 
 def require(checks: list[tuple[bool, str]]) -> None:
@@ -119,17 +117,11 @@ class LaserConfig:
     own. A laser's scans reach the logger after the sweep and the transfer (a SICK LMS at
     38.4 kbaud: 94 ms), while the logger reads the odometry at arrival."""
 
-    def geometry(self) -> dict[str, float | None]:
-        """The reader options this section sets (dynslam_formats.ReaderOptions fields)."""
+    def reader_options(self) -> dict[str, float | None]:
+        """The reader options this section sets (dynslam_formats.ReaderOptions fields): the
+        readers apply them, so every part of the program sees the same scans."""
         return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg,
-                "scan_latency_s": self.scan_latency_s}
-
-    def limit(self, scan: Scan) -> Scan:
-        """The scan with ``max_range_m`` as its max range where set, so every consumer
-        (scan matching, corners, loop closure, the maps) sees the same no-return rule."""
-        if self.max_range_m is None or scan.max_range == self.max_range_m:
-            return scan
-        return dataclasses.replace(scan, max_range=self.max_range_m)
+                "scan_latency_s": self.scan_latency_s, "max_range_m": self.max_range_m}
 
     def check(self) -> None:
         require([
@@ -394,6 +386,43 @@ class CorrelativeConfig:
 
 
 @dataclass(frozen=True)
+class IcpConfig:
+    """Point-to-line ICP (dynslam_cli.localization.scanmatch.icp): the front end's and the
+    loop closures' each their own."""
+
+    iterations: int = 24
+    """Gauss-Newton steps, over which the pairing gate shrinks from ``max_correspondence_m``
+    to ``min_correspondence_m``: slowly enough for a match from a poor odometry guess to
+    converge (with 12, outdoor and open-hall matches kept a fifth of the odometry's heading
+    error)."""
+    max_correspondence_m: float = 0.5
+    """Pairs farther apart than this (at the first iteration) are ignored ..."""
+    min_correspondence_m: float = 0.1
+    """... shrinking to this by the last iteration."""
+    effective_pairs: float = 100.0
+    """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
+    against shares its key scans' errors): for the match's information they count as this
+    many independent pairs, or as themselves where there are fewer."""
+    prior_as_pairs: bool = False
+    """Inside ICP the guess's prior weighs against the pairs as they count in the match's
+    information (``effective_pairs`` of them), not against every pair: a scan of 300 end
+    points holds its prior three times as firmly, so where the walls leave a direction
+    free (a long wall, a turn in front of one) the pairs that are not on the map's walls
+    (a walker, a wall's far end) no longer slide the match along it. Off (the front end's
+    and the loop closures' alike): with the pose graph off, the perfect-odometry worlds
+    office / crowd / corridors / hall / arena go 0.110 / 0.0145 / 0.0475 / 0.0355 / 0.0060
+    -> 0.109 / 0.0142 / 0.0383 / 0.0142 / 0.0042 m, but the real logs' relations (five
+    perturbed copies, medians) MIT 0.0630 -> 0.0660, Intel 0.1295 -> 0.1398, FR079 0.0822 ->
+    0.0783 (spreads 36, 57, 15% -> 27, 24, 26%)."""
+
+    def check(self) -> None:
+        require([(self.iterations >= 1, "icp.iterations must be >= 1"),
+                 (0 < self.min_correspondence_m <= self.max_correspondence_m,
+                  "icp: 0 < min_correspondence_m <= max_correspondence_m"),
+                 (self.effective_pairs > 0, "icp.effective_pairs must be > 0")])
+
+
+@dataclass(frozen=True)
 class MatchConfig:
     """Scan matching: each scan's motion, measured against a local map of key scans, is the
     EKF's control input."""
@@ -411,15 +440,6 @@ class MatchConfig:
     """Readings beyond this are not matched."""
     subsample: int = 1
     """Use every n-th beam of the current scan."""
-    iterations: int = 24
-    """Gauss-Newton steps, over which the pairing gate shrinks from ``max_correspondence_m``
-    to ``min_correspondence_m``: slowly enough for a match from a poor odometry guess to
-    converge (with 12, outdoor and open-hall matches kept a fifth of the odometry's heading
-    error)."""
-    max_correspondence_m: float = 0.5
-    """Pairs farther apart than this (at the first iteration) are ignored ..."""
-    min_correspondence_m: float = 0.1
-    """... shrinking to this by the last iteration."""
     min_inliers: float = 0.5
     """Share of points that must pair up for the match to count."""
     max_rms_m: float = 0.08
@@ -523,21 +543,9 @@ class MatchConfig:
     seen_free_views: int = 4
     """... seen through by at least this many key scans (the real logs' own walls give no
     return now and then: one view drops a fifth of MIT CSAIL's end points, four 3%)."""
-    effective_pairs: float = 100.0
-    """A scan's pairs err together (a wall is seen as a whole, and the map it is matched
-    against shares its key scans' errors): for the match's information they count as this
-    many independent pairs, or as themselves where there are fewer."""
-    prior_as_pairs: bool = False
-    """Inside ICP the guess's prior weighs against the pairs as they count in the match's
-    information (``effective_pairs`` of them), not against every pair: a scan of 300 end
-    points holds its prior three times as firmly, so where the walls leave a direction
-    free (a long wall, a turn in front of one) the pairs that are not on the map's walls
-    (a walker, a wall's far end) no longer slide the match along it. Every ICP with a
-    prior (the front end's refinement, the loop closures'). Off: with the pose graph off,
-    the perfect-odometry worlds office / crowd / corridors / hall / arena go 0.110 /
-    0.0145 / 0.0475 / 0.0355 / 0.0060 -> 0.109 / 0.0142 / 0.0383 / 0.0142 / 0.0042 m,
-    but the real logs' relations (five perturbed copies, medians) MIT 0.0630 -> 0.0660,
-    Intel 0.1295 -> 0.1398, FR079 0.0822 -> 0.0783 (spreads 36, 57, 15% -> 27, 24, 26%)."""
+    icp: IcpConfig = field(default_factory=IcpConfig)
+    """ICP's refinement of the correlative search's pose (and the whole match where
+    ``method = "icp"``); ``[loop.icp]`` is the loop closures' own."""
     correlative: CorrelativeConfig = field(default_factory=CorrelativeConfig)
     """The correlative search (method = "correlative")."""
 
@@ -546,6 +554,7 @@ class MatchConfig:
                   "match.method must be icp or correlative"),
                  (self.seen_free_views >= 1, "match.seen_free_views must be >= 1"),
                  (self.thin_to in ("first", "mean"), 'match.thin_to must be "first" or "mean"')])
+        self.icp.check()
         self.correlative.check()
 
 
@@ -635,6 +644,11 @@ class LoopConfig:
     """... and only as many of them as a factorization of about this many multiplications
     holds (a place revisited for hours ties its passes together: 2000 nodes of a hall driven
     for 4 h took a median 2.5 times the factorization work of the 1 h log's)."""
+    max_range_m: float = 20.0
+    """A node's readings beyond this are not matched (metres)."""
+    icp: IcpConfig = field(default_factory=IcpConfig)
+    """ICP's refinement of a closure's correlative match (the front end's is
+    ``[match.icp]``)."""
 
     def check(self) -> None:
         require([
@@ -645,7 +659,9 @@ class LoopConfig:
             (self.online_flops > 0, "loop.online_flops must be > 0"),
             (self.chain_information in ("motion", "matched"),
              "loop.chain_information must be motion or matched"),
+            (self.max_range_m > 0, "loop.max_range_m must be > 0"),
         ])
+        self.icp.check()
 
 
 @dataclass(frozen=True)

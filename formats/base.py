@@ -30,6 +30,9 @@ class ReaderOptions:
     scan_latency_s: float = 0.0
     """How much older a scan's content is than its stamp (and its odometry pose): its
     odometry is taken this much earlier, between the scan's and the one before's."""
+    max_range_m: float | None = None
+    """The laser's max range instead of the log's (metres): readings at or beyond it are
+    'no return'."""
     start_s: float | None = None
     """Part of a log: leave out scans earlier than this, in seconds after the first scan."""
     end_s: float | None = None

@@ -225,6 +225,21 @@ class BeamStep(ReaderFilter):
             yield scan.respaced(self.step)
 
 
+class RangeLimit(ReaderFilter):
+    """A reader's scans with ``max_range_m`` as their max range, so every consumer (scan
+    matching, corners, loop closure, the maps, a prior's placement) sees the same
+    no-return rule."""
+
+    def __init__(self, reader: LogReader, max_range_m: float) -> None:
+        super().__init__(reader)
+        self.max_range_m = max_range_m
+
+    def scans(self) -> Iterator[Scan]:
+        for scan in self.reader.scans():
+            yield (scan if scan.max_range == self.max_range_m
+                   else dataclasses.replace(scan, max_range=self.max_range_m))
+
+
 class ScanLatency(ReaderFilter):
     """A reader's scans with their odometry taken ``latency_s`` before their stamps, for a
     laser whose scans reach the log that much after they were seen (a SICK at 38.4 kbaud
@@ -250,11 +265,14 @@ class ScanLatency(ReaderFilter):
 
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
     """``reader`` behind the :class:`ScanGuard` (its beams first spread as ``beam_step_deg``
-    says, where set), and in a :class:`LogWindow` when the options ask for part of the log:
-    what every reader's scans go through (plugins' too)."""
+    says, where set; then held to ``max_range_m``, where set), and in a :class:`LogWindow`
+    when the options ask for part of the log: what every reader's scans go through
+    (plugins' too)."""
     if options.beam_step_deg is not None:
         reader = BeamStep(reader, options.beam_step_deg)
     reader = ScanGuard(reader, name)
+    if options.max_range_m is not None:
+        reader = RangeLimit(reader, options.max_range_m)
     if options.scan_latency_s > 0:
         reader = ScanLatency(reader, options.scan_latency_s)
     if options.start_s is None and options.end_s is None and options.max_scans is None:

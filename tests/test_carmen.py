@@ -100,9 +100,9 @@ def test_config_max_range_reaches_every_consumer(tmp_path):
     from dynslam_cli.localization.frontend import ScanMeasurer
     from dynslam_cli.readahead import FrontEnd
     path = write(tmp_path, flaser_with("1 2 3 9", t=1) + flaser(n=4, t=2))
-    source, _, reader = open_log(str(path), ReaderOptions())
     config = Config(laser=LaserConfig(max_range_m=5.0))
-    front = FrontEnd(reader, source, config.laser,
+    source, _, reader = open_log(str(path), ReaderOptions(**config.laser.reader_options()))
+    front = FrontEnd(reader, source,
                      ScanMeasurer.configured(config.ekf, config.match, config.corners))
     scans = list(front.scans())
     assert [s.max_range for s in scans] == [5.0, 5.0]  # what the matcher and the maps see

@@ -22,12 +22,24 @@ def test_defaults_and_overrides(tmp_path):
     ("[map\n", "not valid TOML"),
     ("[map]\np_hit = 0.5000001\n", "map: the grids store log-odds as int16 steps"),
     ("[dynamic]\np_clamp_max = 0.999999999999999\n", "dynamic: .* the clamps within"),
+    ("[match]\niterations = 30\n", "iterations is in \\[match.icp\\] now"),
 ])
 def test_bad_config_is_an_error(tmp_path, text, message):
     p = tmp_path / "c.toml"
     p.write_text(text)
     with pytest.raises(ConfigError, match=message):
         load_config(p)
+
+
+def test_the_loop_closures_icp_is_tuned_apart_from_the_front_ends(tmp_path):
+    """Tuning the front end's ICP leaves the loop closures' as it was, and the other way
+    round (both once read ``[match]``'s)."""
+    p = tmp_path / "c.toml"
+    p.write_text("[match.icp]\niterations = 12\n[loop.icp]\nmax_correspondence_m = 1.0\n")
+    c, default = load_config(p), load_config()
+    assert c.match.icp.iterations == 12 and c.loop.icp.iterations == default.loop.icp.iterations
+    assert c.loop.icp.max_correspondence_m == 1.0
+    assert c.match.icp.max_correspondence_m == default.match.icp.max_correspondence_m
 
 
 def test_dynslam_config_prints_a_config_file_that_loads_back(cli, tmp_path):

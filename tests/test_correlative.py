@@ -17,6 +17,7 @@ from dynslam_cli.localization.correlative import (
 )
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
+from dynslam_cli.sections import IcpConfig
 from dynslam_cli.simulate import ray_cast
 from dynslam_cli.types import Pose2D, Scan
 
@@ -498,12 +499,12 @@ def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
     cfg = MatchConfig()
     ref = PointIndex(robot_points(Pose2D()), neighbours=cfg.normal_neighbours)
     pts = robot_points(Pose2D(0.05, 0.02, 0.01))
-    many = icp(ref, pts, Pose2D(), cfg)
-    few = icp(ref, pts[::12], Pose2D(), cfg)
-    assert len(pts) >= cfg.effective_pairs > len(pts[::12])
+    many = icp(ref, pts, Pose2D(), cfg.icp)
+    few = icp(ref, pts[::12], Pose2D(), cfg.icp)
+    assert len(pts) >= cfg.icp.effective_pairs > len(pts[::12])
     assert many.share > 0.9 and few.share > 0.9
     ratio = np.trace(few.information) / np.trace(many.information)
-    assert ratio < 2 * len(pts[::12]) / cfg.effective_pairs
+    assert ratio < 2 * len(pts[::12]) / cfg.icp.effective_pairs
 
 
 def test_a_prior_weighed_as_the_pairs_holds_against_a_few_stray_pairs():
@@ -520,9 +521,9 @@ def test_a_prior_weighed_as_the_pairs_holds_against_a_few_stray_pairs():
     walker = np.column_stack((np.full(10, 2.15), np.linspace(0.5, 0.9, 10)))
     slides = {}
     for as_pairs in (False, True):
-        cfg = MatchConfig(prior_as_pairs=as_pairs)
+        cfg = MatchConfig(icp=IcpConfig(prior_as_pairs=as_pairs))
         ref = PointIndex(np.vstack((wall, stub)), neighbours=cfg.normal_neighbours)
-        match = icp(ref, np.vstack((wall, walker)), Pose2D(), cfg, (0.02, 0.02, 0.01))
+        match = icp(ref, np.vstack((wall, walker)), Pose2D(), cfg.icp, (0.02, 0.02, 0.01))
         print(as_pairs, match.pose)
         assert abs(match.pose.y) < 0.005  # across the wall: pinned either way
         slides[as_pairs] = -match.pose.x

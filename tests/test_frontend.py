@@ -21,8 +21,8 @@ pytestmark = pytest.mark.skipif(not can_fork(), reason="this system cannot fork"
 
 
 def parts(config: Config) -> tuple:
-    """What a front end takes from a configuration: its laser's limits and its measurer."""
-    return config.laser, ScanMeasurer.configured(config.ekf, config.match, config.corners)
+    """What a front end takes from a configuration: its measurer."""
+    return (ScanMeasurer.configured(config.ekf, config.match, config.corners),)
 
 
 def drain(kind: type, path: str) -> tuple[list, object, Exception | None]:

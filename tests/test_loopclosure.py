@@ -19,6 +19,7 @@ from dynslam_cli.localization.loops import (
     likelihood_field,
 )
 from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
+from dynslam_cli.sections import IcpConfig
 from dynslam_cli.simulate import ray_cast
 from dynslam_cli.types import Pose2D, Scan
 
@@ -168,7 +169,7 @@ def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkey
 def test_graph_distance_stops_at_the_nearest_nodes():
     """The window of an online optimization: the nodes nearest to the closure's two ends,
     and no more than asked for; and a search for given nodes stops once it has them."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     d = closer._links.shortest_paths([0, 40], max_nodes=6)
@@ -211,7 +212,7 @@ def test_loop_closer_closes_a_revisit(submap_nodes):
     """Drive out and back while the estimate's heading drifts 0.4° a step: the return is tied
     to the places seen on the way out, however large the submaps (the old node's submap holds
     none of the stretch just driven: at 8 nodes each side it reached it and closed less)."""
-    closer = LoopCloser(LoopConfig(min_travel_m=3.0, submap_nodes=submap_nodes), MatchConfig(),
+    closer = LoopCloser(LoopConfig(min_travel_m=3.0, submap_nodes=submap_nodes),
                         EkfConfig().noise)
     path = [Pose2D(x, 0.0, 0.0) for x in np.arange(0.0, 3.01, 0.5)]
     path += [Pose2D(x, 0.5, 0.0) for x in np.arange(3.0, -0.01, -0.5)]
@@ -263,7 +264,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 
     pts = corridor_points()
     ref = PointIndex(pts)
-    match = icp(ref, pts, Pose2D(0.3, 0.05, 0.01), MatchConfig(),
+    match = icp(ref, pts, Pose2D(0.3, 0.05, 0.01), IcpConfig(),
                 (0.2, 0.2, 0.1))
     info = match.information
     assert info[0, 0] < 0.01 * info[1, 1]  # along: next to nothing; across: a lot
@@ -275,14 +276,14 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 
     room = PointIndex(robot_points(Pose2D()))  # a room pins every direction
     m = icp(room, robot_points(Pose2D(0.1, 0.0, 0.0)), Pose2D(),
-            MatchConfig(), (0.2, 0.2, 0.1))
+            IcpConfig(), (0.2, 0.2, 0.1))
     assert np.linalg.eigvalsh(m.information[:2, :2]).min() > 1e3
 
 
 def test_a_false_loop_closure_waits_and_never_enters_alone():
     """A closure that would bend the graph is held; it enters only with a second closure
     that tells the same story. A lone false one never does, a pair of true ones do."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -306,7 +307,7 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
     """Matches made a step apart see the same view and share its aliasing (a corridor's
     doors matched one door off): they agree with each other, and still wait until a match
     from farther along (``pair_min_separation_m``) tells the same story."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), MatchConfig(), EkfConfig().noise)
+    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -326,7 +327,7 @@ def test_graph_distance_follows_the_chain_and_takes_loop_shortcuts():
     """The search window grows with the driving between two nodes through the graph, so a
     place tied by a loop closure is near again however long ago it was first seen."""
     closer = LoopCloser(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
-                        MatchConfig(), EkfConfig().noise)
+                        EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     d = closer.graph_distance(40)
@@ -349,7 +350,7 @@ def test_a_match_keeps_none_of_the_odometrys_error():
     pts = robot_points(true)
     for dx, dy, dth in ((0.3, 0.0, 4.0), (-0.2, 0.25, -4.0), (0.0, -0.3, 2.5)):
         guess = Pose2D(true.x + dx, true.y + dy, true.theta + math.radians(dth))
-        m = icp(ref, pts, guess, MatchConfig(), (0.3, 0.3, math.radians(5)))
+        m = icp(ref, pts, guess, IcpConfig(), (0.3, 0.3, math.radians(5)))
         assert m.share > 0.9
         assert math.hypot(m.pose.x - true.x, m.pose.y - true.y) < 0.005
         assert abs(math.degrees(m.pose.theta - true.theta)) < 0.05
@@ -364,7 +365,7 @@ def test_matched_chain_edges_are_loose_where_the_matches_could_not_see():
     infos = {}
     for mode in ("motion", "matched"):
         closer = LoopCloser(LoopConfig(min_travel_m=1e9, chain_information=mode),
-                            MatchConfig(), EkfConfig().noise)
+                            EkfConfig().noise)
         step = Pose2D(0.1, 0.0, 0.0)
         for k in range(6):  # 0.5 m: a node at the first scan and one at the last
             closer.place(Pose2D(0.1 * k, 0.0, 0.0), scan, (step, corridor) if k else None)

@@ -49,7 +49,7 @@ from dynslam_cli.localization.ekf import motion_std
 from dynslam_cli.localization.globalsearch import BlurredMap, gaussian
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
 from dynslam_cli.localization.scanmatch import icp, scan_points
-from dynslam_cli.sections import LoopConfig, MatchConfig, NoiseModel
+from dynslam_cli.sections import LoopConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 FIELD_RES_M = 0.05
@@ -263,12 +263,11 @@ class Links:
 class LoopCloser:
     """Keeps the graph, the key scans and the closures."""
 
-    def __init__(self, cfg: LoopConfig, match: MatchConfig, motion_noise: NoiseModel,
+    def __init__(self, cfg: LoopConfig, motion_noise: NoiseModel,
                  prior: PriorWalls | None = None) -> None:
         """``prior``: an earlier session's walls (its frame is the map frame; the first
         node's pose is in it), matched like an old node's submap."""
         self.cfg = cfg
-        self.match = match
         self.motion_noise = motion_noise  # the EKF's: of its motion between two nodes
         self.graph = PoseGraph()
         self.local_poses: list[Pose2D] = []  # the EKF's pose at each node
@@ -433,7 +432,7 @@ class LoopCloser:
         if (match.score < cfg.min_score
                 or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
             return None
-        refined = icp(field.index, query, match.pose, self.match,
+        refined = icp(field.index, query, match.pose, cfg.icp,
                       np.sqrt(np.diag(match.cov)))
         if refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m:
             return None
@@ -572,8 +571,7 @@ class LoopCloser:
             self._chain = (compose(moved, motion[0]),
                            compound_covariance(moved, cov, motion[0], motion[1]), scans + 1)
         if self.wants_node(local_pose):
-            self.add_node(local_pose, scan_points(scan, self.match.max_range_m,
-                                                  self.match.subsample))
+            self.add_node(local_pose, scan_points(scan, self.cfg.max_range_m))
         node = len(self.local_poses) - 1
         offset = relative(self.local_poses[node], local_pose)
         self._scan_nodes.append(node)

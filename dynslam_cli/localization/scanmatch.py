@@ -42,7 +42,7 @@ from dynslam_cli.localization.correlative import (
     with_points,
 )
 from dynslam_cli.localization.ekf import motion_std
-from dynslam_cli.sections import MatchConfig, NoiseModel
+from dynslam_cli.sections import IcpConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
@@ -96,7 +96,7 @@ class IcpResult(NamedTuple):
     information: np.ndarray
 
 
-def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: MatchConfig,
+def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
         prior_sigma: Sequence[float] | None = None) -> IcpResult:
     """Point-to-line ICP: the pose of ``pts``' frame in the frame of the reference points
     (indexed by ``ref``, which gives their normals), starting at ``guess``.
@@ -482,7 +482,7 @@ class ScanMatcher:
         if self.cfg.method == "correlative" and scan.has_odometry:
             return self._correlative(pts, reference, guess, wheel, scan.odom, predicted)
         sigma = self._prior_sigma(scan, wheel)
-        match = icp(reference, pts, guess, self.cfg, sigma)
+        match = icp(reference, pts, guess, self.cfg.icp, sigma)
         if self._good(match, pts, guess, sigma):
             self.fit_rms = match.rms
             return Placed(match.pose, "matched", fused_covariance(match.information, sigma))
@@ -529,7 +529,7 @@ class ScanMatcher:
                                             cfg.seen_free_views)
             if np.count_nonzero(standing) >= MIN_POINTS:
                 pts = pts[standing]
-        refined = icp(reference, pts, post.pose, cfg, np.sqrt(np.diag(post.cov)))
+        refined = icp(reference, pts, post.pose, cfg.icp, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
         if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
@@ -592,7 +592,7 @@ class ScanMatcher:
                     for d in RECOVERY_TURNS_DEG]
         best = None
         for g in guesses:
-            match = icp(reference, pts, g, self.cfg, sigma)
+            match = icp(reference, pts, g, self.cfg.icp, sigma)
             if (self._good(match, pts, g, sigma) and self._plausible_turn(match.pose, guess, wheel)
                     and (best is None or (match.share, -match.rms) > (best.share, -best.rms))):
                 best = match
