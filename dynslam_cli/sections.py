@@ -166,8 +166,15 @@ class DynamicConfig:
     (bench/near_walls.py: 10 of 10 moves found at both gaps with 0.03; 1 and 1 of 10 with
     0). 0: the window alone, the paper's rule. Off: the worlds' maps score as without it,
     but the arena's box arrivals found fall to 19 of 20 (a box's first sighting dated
-    early), MIT CSAIL's D grows from 79 to 94 cells (6 of them within 0.1 m of S's walls,
-    none without) and its moving tracks from 15 to 39; it costs 24 bytes a cell more."""
+    early), the office's events get worse (with drifting odometry 15 appeared objects
+    reported, 1 true, against 6), MIT CSAIL's D grows from 62 to 94 cells and its moving
+    tracks from 14 to 23, Radish freiburg-079's D cells on S's walls from 9 to 23 (README,
+    "Objects close to walls"); it costs 24 bytes a cell more."""
+    surface_beams: int = 2
+    """... and only where the hit lies among this many consecutive beams whose end points
+    land off S (off the surfaces, or where the window says Free or Unknown); a hit off the
+    surfaces alone among beams on S's walls (a beam's edge on a chair leg, a cell's
+    rounding) updates neither map. 1: every hit off the surfaces goes into D."""
 
     def check(self) -> None:
         require([
@@ -177,6 +184,7 @@ class DynamicConfig:
              "dynamic clamp must be 0 < p_clamp_min < 0.5 < p_clamp_max < 1"),
             (0 <= self.neighbourhood_m <= 1.0, "dynamic.neighbourhood_m must be in [0, 1] m"),
             (0 <= self.surface_m <= 1.0, "dynamic.surface_m must be in [0, 1] m"),
+            (self.surface_beams >= 1, "dynamic.surface_beams must be >= 1"),
         ])
 
 

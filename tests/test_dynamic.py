@@ -158,6 +158,35 @@ def test_object_close_to_a_wall_is_dynamic_where_the_surface_is_compared(surface
         assert np.all(np.abs(board[:, 1]) < 0.35)
 
 
+@pytest.mark.parametrize("beams", [1, 2])
+def test_a_lone_end_point_off_a_walls_surface_is_no_object(beams):
+    """One beam of twenty scans ends 7 cm in front of a wall, its neighbours on it (a
+    beam's edge on a chair leg): counted alone (``surface_beams = 1``) it is an object in D;
+    by default an object needs two beams off the wall, and the lone end point tells neither
+    map anything (S does not grow toward it either); a board seen by many beams still
+    goes into D."""
+    rng = np.random.default_rng(0)
+    slam = DynamicSlam(Config(ekf=STILL, dynamic=DynamicConfig(surface_m=0.03,
+                                                               surface_beams=beams)))
+    for t in range(60):
+        slam.step(_wall_scan(t, rng, y=(t % 5) * 0.2 - 0.4))
+    dynamic = slam.grids.layers["dynamic"]
+    for t in range(60, 80):
+        scan = _wall_scan(t, rng)
+        ranges = scan.ranges.copy()
+        ranges[60] -= 0.07  # straight ahead: 2.93 m, within the window of the wall
+        slam.step(replace(scan, ranges=ranges))
+    stray = _cell(slam, "dynamic", 2.93, 0.0)
+    if beams == 1:
+        assert stray > 0.9
+    else:
+        assert not (probability(dynamic) > 0.5).any()
+        assert _cell(slam, "static", 2.93, 0.0) < 0.1  # still free, not the wall's
+    for t in range(80, 100):
+        slam.step(_wall_scan(t, rng, board_gap=0.1))
+    assert (probability(dynamic) > 0.9).sum() >= 10
+
+
 def test_no_dynamic_is_an_ordinary_grid():
     slam = DynamicSlam(Config(dynamic=DynamicConfig(enabled=False), ekf=STILL))
     for t in range(10):

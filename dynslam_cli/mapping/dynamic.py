@@ -156,7 +156,8 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
-        self._surfaces = (Surfaces(self.grids, d.surface_m, self._radius, laser.min_range_m)
+        self._surfaces = (Surfaces(self.grids, d.surface_m, self._radius, laser.min_range_m,
+                                   d.surface_beams)
                           if d.enabled and d.surface_m > 0 and self._radius > 0 else None)
         self.changes = (ChangeRecorder(changes, m, self.grids)
                         if changes is not None and changes.enabled and d.enabled else None)
@@ -167,16 +168,20 @@ class DynamicMapper:
 
     def integrate(self, pose: Pose2D, scan: Scan) -> None:
         """One scan from the robot's pose ``pose`` (map frame)."""
-        observation = self.observe(pose, scan)
+        seen = observation = self.observe(pose, scan)
         free_prev, hit_prev = self.classify_against_static_map(observation)
         if self._surfaces is not None:
-            hit_prev = self.off_the_surface(pose, scan, observation, hit_prev)
+            hit_prev, lone = self.off_the_surface(pose, scan, observation, hit_prev)
+            static = (hit_prev != FREE) & ~lone
+            if lone.any():  # no evidence either way
+                observation = Observation(observation.free, observation.hit[~lone])
+                hit_prev = hit_prev[~lone]
         if self.changes is not None:
             self.changes.record(scan.stamp, observation, hit_prev == FREE)
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
         if self._surfaces is not None:
-            self._surfaces.learn(observation, hit_prev != FREE)
+            self._surfaces.learn(seen, static)
 
     def classify_landmarks(self, positions: np.ndarray) -> list[str]:
         """Table 3: each landmark's class ("static" or "dynamic") by the state of S^{t-1}
@@ -197,14 +202,18 @@ class DynamicMapper:
                                   scan.max_range, laser.min_range_m, laser.clear_cap_m)
 
     def off_the_surface(self, pose: Pose2D, scan: Scan, obs: Observation,
-                        hit_prev: np.ndarray) -> np.ndarray:
+                        hit_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``hit_prev``, but Free for a hit cell that S holds firmly Free (halfway in log-odds
         from the Free threshold to its floor) while the window around it says Occupied,
         or Unknown only for the strip in front of a wall that no beam passed
         (:func:`unknown_only_beside_walls`), where most of its end points lie off the
         surfaces around it (dynslam_cli.mapping.surfaces): something stands where the robot
         saw nothing, next to a wall but not on it. Next to the edge of what the robot has
-        seen the window's Unknown stands (the paper's "static until seen to move")."""
+        seen the window's Unknown stands (the paper's "static until seen to move").
+        And which of those cells no beam beside one of their end points saw off S too
+        (``[dynamic] surface_beams``): a lone end point off the surfaces, which tells
+        neither map anything (a beam's edge on a chair leg is not an object, and not the
+        wall's either)."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
         own = classify_static(stored, m.free_threshold, m.occupied_threshold)
@@ -220,7 +229,7 @@ class DynamicMapper:
             logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()
         out[freed] = FREE
-        return out
+        return out, self._surfaces.lone(out != OCCUPIED) & freed
 
     def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the

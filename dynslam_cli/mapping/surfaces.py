@@ -41,31 +41,38 @@ class Surfaces:
     """The surface of S within each cell, kept on the grid stack as float32 layers."""
 
     def __init__(self, grids: GridStack, surface_m: float, radius: int,
-                 min_range_m: float) -> None:
+                 min_range_m: float, min_beams: int = 1) -> None:
+        """``min_beams``: consecutive beams whose end points must lie off S (off the
+        surfaces, or where the window already says Free or Unknown) for a hit off the
+        surfaces to count."""
         self.grids = grids
         self.surface_m = surface_m
+        self.min_beams = min_beams
         self.radius = radius
         self.min_range_m = min_range_m
-        self._last = (np.zeros((0, 2)), np.zeros(0, np.int64))  # the last scan's end points
+        # the last scan's end points: where, which hit cell holds each, and its beam
+        self._last = (np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
         for name in MOMENTS:
             grids.add_layer(name, np.float32)
 
     def end_points(self, laser: Pose2D, scan: Scan, obs: Observation
-                   ) -> tuple[np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The scan's end points that hit something (N × 2, map frame) seen from the laser's
-        pose, and where each one's cell is in ``obs.hit``."""
+        pose, where each one's cell is in ``obs.hit``, and each one's beam (its index in the
+        scan)."""
         r = scan.ranges
         with np.errstate(invalid="ignore"):
             hit = (r > self.min_range_m) & (r < scan.max_range)
         a = laser.theta + scan.angles[hit]
         points = np.column_stack((laser.x + r[hit] * np.cos(a), laser.y + r[hit] * np.sin(a)))
+        beams = np.flatnonzero(hit)
         if not len(obs.hit):
-            return points[:0], np.zeros(0, np.int64)
+            return points[:0], np.zeros(0, np.int64), beams[:0]
         cells = self.grids.flat_cells(*self.grids.world_cells_of(points[:, 0], points[:, 1]))
         order = np.argsort(obs.hit, kind="stable")
         where = order[np.minimum(np.searchsorted(obs.hit, cells, sorter=order), len(order) - 1)]
         listed = (cells >= 0) & (obs.hit[where] == cells)
-        return points[listed], where[listed]
+        return points[listed], where[listed], beams[listed]
 
     def off_surfaces(self, laser: Pose2D, scan: Scan, obs: Observation, doubt: np.ndarray,
                      walls: np.ndarray, free: float) -> np.ndarray:
@@ -73,7 +80,7 @@ class Surfaces:
         every surface drawn in the window around them in cells S does not hold Free (stored
         log-odds above ``free``, in steps); ``walls``: the hit cells S holds Occupied, whose
         end points tell how well the scan fits S."""
-        points, where = self._last = self.end_points(laser, scan, obs)
+        points, where, _ = self._last = self.end_points(laser, scan, obs)
         asked = doubt[where]
         if not asked.any():
             return np.zeros(len(obs.hit), bool)
@@ -95,10 +102,23 @@ class Surfaces:
                 >= np.bincount(cells, minlength=len(obs.hit)))
         return doubt & ~kept
 
+    def lone(self, off: np.ndarray) -> np.ndarray:
+        """Which of the hit cells ``off`` S (of the last scan's ``obs.hit``: off the
+        surfaces, or where the window says Free or Unknown) hold no end point among
+        ``min_beams`` consecutive beams whose end points are all off S."""
+        _, where, beams = self._last
+        if self.min_beams <= 1 or not off.any():
+            return np.zeros(len(off), bool)
+        # a run of off end points breaks where one is not off or a beam is skipped
+        apart = off[where]
+        run = np.cumsum(np.r_[True, (np.diff(beams) != 1) | ~apart[:-1]])
+        long = apart & (np.bincount(run, weights=apart)[run] >= self.min_beams)
+        return off & (np.bincount(where[long], minlength=len(off)) == 0)
+
     def learn(self, obs: Observation, static: np.ndarray) -> None:
         """Draw the last scan's end points into the surfaces of the hit cells (of
         ``obs.hit``) that S took as ``static``."""
-        points, where = self._last
+        points, where, _ = self._last
         keep = static[where]
         cells, points = obs.hit[where[keep]], points[keep]
         if not len(cells):
@@ -165,3 +185,4 @@ class Surfaces:
         if not len(across):
             return self.surface_m
         return max(self.surface_m, FIT_SPREADS * float(np.median(across)))
+
