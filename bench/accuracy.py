@@ -33,6 +33,7 @@ from dynslam_cli.config import Config  # noqa: E402
 from dynslam_cli.evaluate import (  # noqa: E402
     MapThresholds,
     score_changes,
+    score_closures,
     score_events,
     score_run,
 )
@@ -76,8 +77,9 @@ def one(world: str, noise: float, mode: str, duration: float, rate: float, tmp: 
                       truth, th)
     events = score_events(snaps, truth, th)
     changes = score_changes(result.changes, result.trajectory, truth)
+    closures = score_closures(result.closures, result.trajectory, truth)
     return {"world": world, "odometry_noise": noise, "mode": mode, "wall_s": round(wall, 2),
-            **final, "events": events, "changes": changes}
+            **final, "events": events, "changes": changes, "closures": closures}
 
 
 def fmt(v: object) -> str:
@@ -116,7 +118,7 @@ def main() -> None:
                                     base))
     head = ("world", "odom", "mode", "ATE m", "odo ATE", "S prec", "S recall", "ghost",
             "D prec", "moved", "det.static", "vacated", "ch. appeared", "ch. vacated",
-            "ch. moving")
+            "ch. moving", "closures")
     print(" | ".join(head))
     for r in rows:
         s, dm, ev = r["static_map"], r["dynamic_map"], r["events"]
@@ -126,7 +128,8 @@ def main() -> None:
                           fmt(r["trajectory"]["odometry_ate_rmse_m"]), fmt(s["precision"]),
                           fmt(s["recall"]), fmt(s["ghost_rate"]), fmt(dm["precision"]),
                           f"{mv['detected']}/{mv['of']}", str(mv["detected_static"]),
-                          f"{vc['cleared']}/{vc['of']}", *changes(r["changes"]))))
+                          f"{vc['cleared']}/{vc['of']}", *changes(r["changes"]),
+                          f"{r['closures']['right']}/{r['closures']['reported']}")))
     args.out.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
 
 

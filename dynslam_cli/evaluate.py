@@ -446,6 +446,35 @@ def score_changes(events: list[ChangeEvent], trajectory: np.ndarray, truth: dict
     return out
 
 
+def score_closures(closures: np.ndarray, trajectory: np.ndarray, truth: dict[str, Any],
+                   tolerance_m: float = 0.1, tolerance_deg: float = 1.0) -> dict[str, Any]:
+    """The pose graph's loop closures (rows: the scan numbers of the old and the new node's
+    scans, the new seen from the old as matched: x, y, θ) against the truth's poses at
+    those scans' stamps: a closure is right where its pose is within ``tolerance_m`` (two
+    cells) and ``tolerance_deg`` of the true one; its errors' median and largest."""
+    closures = np.asarray(closures, dtype=float).reshape(-1, 5)
+    stamps = _on_truth_clock(trajectory, truth)[:, :1]
+    ends = closures[:, :2].astype(np.int64)
+    _, at = match_stamps(stamps[ends.reshape(-1)], np.asarray(truth["poses"], dtype=float),
+                         0.01)
+    if len(at) < 2 * len(ends):
+        raise ScoreError("the closures' scans have no true pose at their stamps")
+    ref = np.asarray(truth["poses"], dtype=float)[at, 1:].reshape(-1, 2, 3)
+    old, new = ref[:, 0], ref[:, 1]
+    c, s = np.cos(old[:, 2]), np.sin(old[:, 2])
+    d = new[:, :2] - old[:, :2]
+    true = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
+                            wrap_angles(new[:, 2] - old[:, 2])))
+    error_m = np.hypot(*(closures[:, 2:4] - true[:, :2]).T)
+    error_deg = np.degrees(np.abs(wrap_angles(closures[:, 4] - true[:, 2])))
+    right = (error_m <= tolerance_m) & (error_deg <= tolerance_deg)
+    return {"right": int(right.sum()), "reported": len(closures),
+            "precision": _ratio(right.sum(), len(closures)),
+            "error_m_median": float(np.median(error_m)) if len(error_m) else None,
+            "error_m_max": float(error_m.max()) if len(error_m) else None,
+            "error_deg_max": float(error_deg.max()) if len(error_deg) else None}
+
+
 def _tally_events(mine: list[ChangeEvent], theirs: list[dict[str, Any]], tolerance_m: float,
                   when: Callable[[ChangeEvent, dict[str, Any]], bool]
                   ) -> tuple[dict[str, Any], set[int]]:

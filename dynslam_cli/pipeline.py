@@ -155,7 +155,9 @@ class DynamicSlam:
 
     def _result(self, mapper: DynamicMapper, trajectory: np.ndarray, final: bool = False
                 ) -> SlamResult:
-        return SlamResult.of(mapper, trajectory, self.landmarks(mapper), self.counts(), final)
+        closures = self._loops.loop_closures() if final and self._loops is not None else None
+        return SlamResult.of(mapper, trajectory, self.landmarks(mapper), self.counts(), final,
+                             closures)
 
     def counts(self) -> dict[str, int]:
         """How localization went, for ``summary.json``."""

@@ -45,10 +45,14 @@ class SlamResult:
     """What the final grids hold: tiles, cells stored and seen, bytes per cell seen."""
     changes: list[ChangeEvent] = field(default_factory=list)
     """What changed in the world during the run (final results only)."""
+    closures: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    """The pose graph's loop closures (final results only): per row the scan numbers of
+    the two nodes' scans (old, new) and the new seen from the old (x, y, θ) as matched."""
 
     @classmethod
     def of(cls, mapper: DynamicMapper, trajectory: np.ndarray, landmarks: list[Landmark],
-           localization: dict[str, int], final: bool = False) -> SlamResult:
+           localization: dict[str, int], final: bool = False,
+           closures: np.ndarray | None = None) -> SlamResult:
         """The result of the maps of ``mapper``, with the change events found in its
         evidence if ``final`` (each named by the landmark it stands on, if any)."""
         changes = []
@@ -57,7 +61,8 @@ class SlamResult:
         return cls(static=mapper.grids.snapshot("static"),
                    dynamic=mapper.grids.snapshot("dynamic"), trajectory=trajectory,
                    landmarks=landmarks, localization=localization,
-                   grid_memory=mapper.grids.memory(), changes=changes)
+                   grid_memory=mapper.grids.memory(), changes=changes,
+                   closures=np.zeros((0, 5)) if closures is None else closures)
 
 
 def landmarks_of(corners: list[tuple[int, bool, int, float, float, np.ndarray]],

@@ -14,6 +14,7 @@ from dynslam_cli.evaluate import (
     ate_rmse,
     distance_to_segments,
     relation_errors,
+    score_closures,
     score_run,
 )
 from dynslam_cli.mapping.grid import OccupancyMap
@@ -113,6 +114,30 @@ def test_odometry_only_run_with_drift_scores_poorly(tmp_path):
                                                           rel=1e-3)
     assert r["static_map"]["precision"] < 0.5
     assert r["dynamic_map"]["moved_objects_detected"]["rate"] == 0.0
+
+
+def test_a_loop_closure_is_right_only_where_it_matches_the_true_poses():
+    """A robot drives a square loop (heading turning with it); a closure that states the
+    true pose of the fourth corner seen from the first is right, one 0.15 m off is not,
+    nor one 2 deg off; their errors are reported in metres and degrees."""
+    poses = [(0.0, 0.0, 0.0, 0.0), (1.0, 4.0, 0.0, math.pi / 2),
+             (2.0, 4.0, 4.0, math.pi), (3.0, 0.0, 4.0, -math.pi / 2),
+             (4.0, 0.1, 0.0, 0.05)]
+    truth = {"poses": [list(p) for p in poses]}
+    trajectory = np.array(poses)  # stamps: scan k at k seconds
+    c, s = math.cos(0.05), math.sin(0.05)
+    true = (c * -0.1, -s * -0.1, -0.05)  # the first seen from the last, in its frame
+    closures = np.array([
+        [0, 4, 0.1, 0.0, 0.05],  # the last seen from the first: right
+        [4, 0, *true],  # the first seen from the last: right
+        [0, 4, 0.25, 0.0, 0.05],  # 0.15 m off
+        [0, 4, 0.1, 0.0, 0.05 + math.radians(2)],  # 2 deg off
+    ])
+    score = score_closures(closures, trajectory, truth)
+    assert score["right"] == 2 and score["reported"] == 4 and score["precision"] == 0.5
+    assert score["error_m_max"] == pytest.approx(0.15, abs=1e-9)
+    assert score["error_deg_max"] == pytest.approx(2.0, abs=1e-9)
+    assert score_closures(np.zeros((0, 5)), trajectory, truth)["reported"] == 0
 
 
 def test_relation_metric_on_hand_computed_case():

@@ -552,6 +552,15 @@ class LoopCloser:
             return points
         return transform_points(self.correction(len(self.local_poses) - 1), points)
 
+    def loop_closures(self) -> np.ndarray:
+        """The closures in the graph, K × 5: the scan at which each end's node was made (old,
+        new) and the new node seen from the old (x, y, θ) as matched (a prior's matches to
+        its walls are closures to the first node)."""
+        i, j, z, _, loop = self.graph.edges.arrays()
+        made = np.searchsorted(np.asarray(self._scan_nodes, dtype=np.int64),
+                               np.arange(len(self.local_poses)))
+        return np.column_stack((made[i[loop]], made[j[loop]], z[loop]))
+
     def counts(self) -> dict[str, int]:
         """The graph's nodes, the closures tried and made (those to the prior's walls
         among them; and how many scans matched those) for ``summary.json``."""
