@@ -164,17 +164,18 @@ class DynamicConfig:
     within three times how far the scan's end points around it lie off S's walls where that
     is wider (dynslam_cli.mapping.surfaces): a box 5 or 10 cm from a wall goes into D, not S
     (bench/near_walls.py: 10 of 10 moves found at both gaps with 0.03; 1 and 1 of 10 with
-    0). 0: the window alone, the paper's rule. Off: the worlds' maps score as without it,
-    but the arena's box arrivals found fall to 19 of 20 (a box's first sighting dated
-    early), the office's events get worse (with drifting odometry 15 appeared objects
-    reported, 1 true, against 6), MIT CSAIL's D grows from 62 to 94 cells and its moving
-    tracks from 14 to 23, Radish freiburg-079's D cells on S's walls from 9 to 23 (README,
-    "Objects close to walls"); it costs 24 bytes a cell more."""
+    0). 0: the window alone, the paper's rule. Off: the worlds' maps and the corridors'
+    and arena's events score as without it, but the office's events get worse (with
+    drifting odometry 15 appeared objects reported, 1 true, against 6), MIT CSAIL's D grows
+    from 62 to 92 cells and its moving tracks from 14 to 21, Radish freiburg-079's D cells
+    beside S's from 9 to 22 (README, "Objects close to walls"); it costs 24 bytes a cell
+    more."""
     surface_beams: int = 2
     """... and only where the hit lies among this many consecutive beams whose end points
-    land off S (off the surfaces, or where the window says Free or Unknown); a hit off the
-    surfaces alone among beams on S's walls (a beam's edge on a chair leg, a cell's
-    rounding) updates neither map. 1: every hit off the surfaces goes into D."""
+    land where S was seen free (off the surfaces, or where the window says Free); a hit off
+    the surfaces alone among beams on S's walls or on what S has not seen yet (a beam's
+    edge on a chair leg, the first view of a box's face) updates neither map. 1: every hit
+    off the surfaces goes into D."""
 
     def check(self) -> None:
         require([

@@ -210,10 +210,10 @@ class DynamicMapper:
         surfaces around it (dynslam_cli.mapping.surfaces): something stands where the robot
         saw nothing, next to a wall but not on it. Next to the edge of what the robot has
         seen the window's Unknown stands (the paper's "static until seen to move").
-        And which of those cells no beam beside one of their end points saw off S too
-        (``[dynamic] surface_beams``): a lone end point off the surfaces, which tells
-        neither map anything (a beam's edge on a chair leg is not an object, and not the
-        wall's either)."""
+        And which of those cells no beam beside one of their end points saw where S was
+        seen free too (``[dynamic] surface_beams``): a lone end point off the surfaces,
+        which tells neither map anything (a beam's edge on a chair leg is not an object, and
+        not the wall's either; nor is the first view of a face beside cells still Unknown)."""
         m = self._map
         stored = self.grids.layers["static"].reshape(-1)[obs.hit]
         own = classify_static(stored, m.free_threshold, m.occupied_threshold)
@@ -229,7 +229,7 @@ class DynamicMapper:
             logit(m.free_threshold) / LOGODDS_STEP)
         out = hit_prev.copy()
         out[freed] = FREE
-        return out, self._surfaces.lone(out != OCCUPIED) & freed
+        return out, self._surfaces.lone(out == FREE) & freed
 
     def classify_against_static_map(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """State of S^{t-1} (Free/Unknown/Occupied) at the cells seen free, and over the

@@ -42,8 +42,8 @@ class Surfaces:
 
     def __init__(self, grids: GridStack, surface_m: float, radius: int,
                  min_range_m: float, min_beams: int = 1) -> None:
-        """``min_beams``: consecutive beams whose end points must lie off S (off the
-        surfaces, or where the window already says Free or Unknown) for a hit off the
+        """``min_beams``: consecutive beams whose end points must lie where S was seen free
+        (off the surfaces, or where the window already says Free) for a hit off the
         surfaces to count."""
         self.grids = grids
         self.surface_m = surface_m
@@ -104,8 +104,8 @@ class Surfaces:
 
     def lone(self, off: np.ndarray) -> np.ndarray:
         """Which of the hit cells ``off`` S (of the last scan's ``obs.hit``: off the
-        surfaces, or where the window says Free or Unknown) hold no end point among
-        ``min_beams`` consecutive beams whose end points are all off S."""
+        surfaces, or where the window says Free) hold no end point among ``min_beams``
+        consecutive beams whose end points are all off S."""
         _, where, beams = self._last
         if self.min_beams <= 1 or not off.any():
             return np.zeros(len(off), bool)
