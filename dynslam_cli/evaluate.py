@@ -454,17 +454,13 @@ def score_closures(closures: np.ndarray, trajectory: np.ndarray, truth: dict[str
     cells) and ``tolerance_deg`` of the true one; its errors' median and largest."""
     closures = np.asarray(closures, dtype=float).reshape(-1, 5)
     stamps = _on_truth_clock(trajectory, truth)[:, :1]
-    ends = closures[:, :2].astype(np.int64)
-    _, at = match_stamps(stamps[ends.reshape(-1)], np.asarray(truth["poses"], dtype=float),
-                         0.01)
-    if len(at) < 2 * len(ends):
+    scans = closures[:, :2].astype(np.int64).reshape(-1)
+    poses = np.asarray(truth["poses"], dtype=float)
+    _, at = match_stamps(stamps[scans], poses, 0.01)
+    if len(at) < len(scans):
         raise ScoreError("the closures' scans have no true pose at their stamps")
-    ref = np.asarray(truth["poses"], dtype=float)[at, 1:].reshape(-1, 2, 3)
-    old, new = ref[:, 0], ref[:, 1]
-    c, s = np.cos(old[:, 2]), np.sin(old[:, 2])
-    d = new[:, :2] - old[:, :2]
-    true = np.column_stack((c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
-                            wrap_angles(new[:, 2] - old[:, 2])))
+    ends = poses[at].reshape(-1, 2, 4)
+    true = seen_from_first(ends[:, 0], ends[:, 1])
     error_m = np.hypot(*(closures[:, 2:4] - true[:, :2]).T)
     error_deg = np.degrees(np.abs(wrap_angles(closures[:, 4] - true[:, 2])))
     right = (error_m <= tolerance_m) & (error_deg <= tolerance_deg)
@@ -616,12 +612,8 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
         raise ScoreError(f"only {int(ok.sum())} of {len(relations)} relations ({in_span} within "
                          f"the trajectory's {_span(trajectory)}) have both poses within "
                          f"{max_dt:g} s: not the same run, or its stamps are shifted")
-    p1, p2 = trajectory[have1[ok]], trajectory[have2[ok]]
     rel = relations[ok][:, [2, 3, 7]]
-    c, s = np.cos(p1[:, 3]), np.sin(p1[:, 3])
-    dx_w, dy_w = p2[:, 1] - p1[:, 1], p2[:, 2] - p1[:, 2]
-    est = np.column_stack((c * dx_w + s * dy_w, -s * dx_w + c * dy_w,
-                           wrap_angles(p2[:, 3] - p1[:, 3])))
+    est = seen_from_first(trajectory[have1[ok]], trajectory[have2[ok]])
     trans = _translation_errors(seen_from(est, frame), rel)
     rot = np.degrees(np.abs(wrap_angles(est[:, 2] - rel[:, 2])))
     fit = fitted_frame(est, rel)
@@ -638,6 +630,15 @@ def relation_errors(trajectory: np.ndarray, relations: np.ndarray, max_dt: float
             "rotational_deg": stats(rot), "rotational_squared_deg2": stats(rot ** 2),
             "fitted_frame": {"x_m": fit[0], "y_m": fit[1], "translational_m": stats(
                 _translation_errors(seen_from(est, fit), rel))}}
+
+
+def seen_from_first(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Each pose of ``second`` in the frame of the pose of ``first`` on its row (rows stamp,
+    x, y, θ): rows x, y, θ."""
+    c, s = np.cos(first[:, 3]), np.sin(first[:, 3])
+    dx, dy = second[:, 1] - first[:, 1], second[:, 2] - first[:, 2]
+    return np.column_stack((c * dx + s * dy, -s * dx + c * dy,
+                            wrap_angles(second[:, 3] - first[:, 3])))
 
 
 def seen_from(est: np.ndarray, frame: tuple[float, float]) -> np.ndarray:

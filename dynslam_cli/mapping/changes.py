@@ -159,8 +159,7 @@ class ChangeRecorder:
         self._held.add(scan, held)
         if grids.seeded:
             self._note_first_free(obs.free, scan)
-        if sum(map(len, (self._crossed, self._grazed, self._rising, self._held))) \
-                >= self._compact_at:
+        if self._records() >= self._compact_at:
             self.compact()
 
     def _note_cleared(self, cleared: np.ndarray, hit: np.ndarray, scan: int) -> None:
@@ -221,8 +220,11 @@ class ChangeRecorder:
         cells, scans = self._grazed.arrays()
         keep = ~np.isin(cells, self.contested) & (scans > self.last_held(cells))
         self._grazed.set(cells[keep], scans[keep])
-        self._compact_at = max(COMPACT_AT, 2 * sum(map(len, (
-            self._crossed, self._grazed, self._rising, self._held))))
+        self._compact_at = max(COMPACT_AT, 2 * self._records())
+
+    def _records(self) -> int:
+        """How many crossings, grazes, rises and hits are kept."""
+        return sum(map(len, (self._crossed, self._grazed, self._rising, self._held)))
 
     def _one_per_cell(self, cells: np.ndarray, scans: np.ndarray, last: bool
                       ) -> tuple[np.ndarray, np.ndarray]:

@@ -185,4 +185,3 @@ class Surfaces:
         if not len(across):
             return self.surface_m
         return max(self.surface_m, FIT_SPREADS * float(np.median(across)))
-
