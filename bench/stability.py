@@ -112,7 +112,7 @@ def main() -> None:
                 errors.append(radish_ate(copy, truth, config_file, Path(tmp) / "out"))
             report(rows, f"{name} {level}", "full", errors)
         for name in filter(None, args.logs.split(",")):
-            src = DATA / LOGS[name][0]
+            src = DATA / LOGS[name][0]  # (perturbed copies of the log; run with its settings)
             if not src.name.endswith((".clf", ".clf.gz")):
                 sys.exit(f"{name}: only Carmen logs are perturbed here")
             copies = []

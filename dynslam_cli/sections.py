@@ -83,6 +83,9 @@ class MapConfig:
         ])
 
 
+MAX_MOUNT_M = 10.0  # a laser's mount lies within this of the robot's centre
+
+
 @dataclass(frozen=True)
 class LaserConfig:
     """How readings are interpreted."""
@@ -111,6 +114,19 @@ class LaserConfig:
     summary.json's ``input.beam_spacing`` holds the check). Not for a log read from
     standard input."""
 
+    mount_x_m: float | None = None
+    """The laser's mount on the robot, for a log that states it wrong or not at all: its x
+    (metres, forward of the odometry's centre), instead of the log's. The trajectory is the
+    robot's, so a mount stated wrong turns into an error in each turn of the relations
+    between its poses: the Kümmerle FR079 logs as converted to ROS (and the Carmen log
+    rebuilt from them) put the laser 4 cm ahead, where the original log's PARAM
+    robot_frontlaser_offset puts it 4 cm behind; read with -0.04, the benchmark's
+    relations fit the trajectory's own frame (within 8 mm) and the full run's relation
+    error falls from 0.065 to 0.031 m."""
+    mount_y_m: float | None = None
+    """... its y (metres, to the left), instead of the log's."""
+    mount_deg: float | None = None
+    """... its heading (degrees, from the robot's), instead of the log's."""
     scan_latency_s: float = 0.0
     """How much older a scan's content is than its stamp and its odometry pose (seconds):
     each scan's odometry is taken this much earlier, between the scan before's and its
@@ -121,7 +137,9 @@ class LaserConfig:
         """The reader options this section sets (dynslam_formats.ReaderOptions fields): the
         readers apply them, so every part of the program sees the same scans."""
         return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg,
-                "scan_latency_s": self.scan_latency_s, "max_range_m": self.max_range_m}
+                "scan_latency_s": self.scan_latency_s, "max_range_m": self.max_range_m,
+                "mount_x_m": self.mount_x_m, "mount_y_m": self.mount_y_m,
+                "mount_deg": self.mount_deg}
 
     def check(self) -> None:
         require([
@@ -133,6 +151,11 @@ class LaserConfig:
             (self.beam_step_deg is None or 0 < self.beam_step_deg <= 360,
              "laser.beam_step_deg must be in (0, 360]"),
             (0 <= self.scan_latency_s <= 1, "laser.scan_latency_s must be in [0, 1] s"),
+            *((v is None or abs(v) <= MAX_MOUNT_M, f"laser.{name} must be within "
+               f"{MAX_MOUNT_M:g} m of the robot") for name, v in (("mount_x_m", self.mount_x_m),
+                                                                 ("mount_y_m", self.mount_y_m))),
+            (self.mount_deg is None or abs(self.mount_deg) <= 360,
+             "laser.mount_deg must be in [-360, 360]"),
         ])
 
 

@@ -33,6 +33,12 @@ class ReaderOptions:
     max_range_m: float | None = None
     """The laser's max range instead of the log's (metres): readings at or beyond it are
     'no return'."""
+    mount_x_m: float | None = None
+    """The laser's mount on the robot instead of the log's: its x (metres, forward) ..."""
+    mount_y_m: float | None = None
+    """... its y (metres, left) ..."""
+    mount_deg: float | None = None
+    """... and its heading (degrees); each one set replaces that coordinate alone."""
     start_s: float | None = None
     """Part of a log: leave out scans earlier than this, in seconds after the first scan."""
     end_s: float | None = None

@@ -225,6 +225,28 @@ class BeamStep(ReaderFilter):
             yield scan.respaced(self.step)
 
 
+class LaserMount(ReaderFilter):
+    """A reader's scans with the laser's mount the options give (``mount_x_m``, ``mount_y_m``,
+    ``mount_deg``: each set one replaces that coordinate of the log's), for a log that
+    states its mount wrong or not at all."""
+
+    def __init__(self, reader: LogReader, options: ReaderOptions) -> None:
+        super().__init__(reader)
+        self.x, self.y = options.mount_x_m, options.mount_y_m
+        self.theta = None if options.mount_deg is None else math.radians(options.mount_deg)
+        self._stated: Pose2D | None = None  # the log's last mount ...
+        self._mount = Pose2D()  # ... and what it becomes
+
+    def scans(self) -> Iterator[Scan]:
+        for scan in self.reader.scans():
+            if scan.laser != self._stated:
+                stated = self._stated = scan.laser
+                self._mount = Pose2D(stated.x if self.x is None else self.x,
+                                     stated.y if self.y is None else self.y,
+                                     stated.theta if self.theta is None else self.theta)
+            yield dataclasses.replace(scan, laser=self._mount)
+
+
 class RangeLimit(ReaderFilter):
     """A reader's scans with ``max_range_m`` as their max range, so every consumer (scan
     matching, corners, loop closure, the maps, a prior's placement) sees the same
@@ -265,11 +287,13 @@ class ScanLatency(ReaderFilter):
 
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
     """``reader`` behind the :class:`ScanGuard` (its beams first spread as ``beam_step_deg``
-    says, where set; then held to ``max_range_m``, where set), and in a :class:`LogWindow`
-    when the options ask for part of the log: what every reader's scans go through
-    (plugins' too)."""
+    says and its laser mounted as ``mount_*`` say, where set; then held to ``max_range_m``,
+    where set), and in a :class:`LogWindow` when the options ask for part of the log: what
+    every reader's scans go through (plugins' too)."""
     if options.beam_step_deg is not None:
         reader = BeamStep(reader, options.beam_step_deg)
+    if any(v is not None for v in (options.mount_x_m, options.mount_y_m, options.mount_deg)):
+        reader = LaserMount(reader, options)
     reader = ScanGuard(reader, name)
     if options.max_range_m is not None:
         reader = RangeLimit(reader, options.max_range_m)

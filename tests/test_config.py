@@ -23,6 +23,7 @@ def test_defaults_and_overrides(tmp_path):
     ("[map]\np_hit = 0.5000001\n", "map: the grids store log-odds as int16 steps"),
     ("[dynamic]\np_clamp_max = 0.999999999999999\n", "dynamic: .* the clamps within"),
     ("[match]\niterations = 30\n", "iterations is in \\[match.icp\\] now"),
+    ("[laser]\nmount_y_m = -12.5\n", "laser.mount_y_m must be within 10 m of the robot"),
 ])
 def test_bad_config_is_an_error(tmp_path, text, message):
     p = tmp_path / "c.toml"

@@ -364,3 +364,53 @@ def test_reader_plugin_from_entry_point(cli, tmp_path, monkeypatch):
         assert len(read_tum(tmp_path / "o/trajectory.tum")) == 5
     finally:
         dynslam_formats.all_readers.cache_clear()
+
+
+def _mount_stated_ahead(log: Path, dst: Path, ahead_m: float) -> None:
+    """``log`` (Carmen FLASER lines) rewritten to state its laser ``ahead_m`` in front of
+    the robot's centre, where the simulated laser sits at the centre."""
+    lines = []
+    for line in log.read_text().splitlines():
+        f = line.split()
+        if f and f[0] == "FLASER":
+            n = int(f[1])
+            x, y, theta = map(float, f[n + 5:n + 8])
+            f[n + 2:n + 5] = [f"{x + ahead_m * math.cos(theta):.6f}",
+                              f"{y + ahead_m * math.sin(theta):.6f}", f"{theta:.6f}"]
+        lines.append(" ".join(f))
+    dst.write_text("\n".join(lines) + "\n")
+
+
+def test_a_mount_stated_wrong_is_read_as_the_user_gives_it(simulated, cli, tmp_path):
+    """A log that states its laser 30 cm ahead of where it sits (a converter's mount): read
+    as it is, each turn swings the scans and the trajectory is off; with the mount given
+    (``[laser] mount_*``) every scan is mounted as in the true log, and the run is the true
+    log's, byte for byte. Each coordinate given replaces that one alone."""
+    from dynslam_formats import ReaderOptions, open_log
+
+    true_log = Path(simulated["carmen"])
+    wrong = tmp_path / "wrong.log"
+    _mount_stated_ahead(true_log, wrong, 0.3)
+    source, _, reader = open_log(str(wrong), ReaderOptions(mount_x_m=0.0, mount_deg=90.0))
+    try:
+        mounts = {scan.laser for scan in reader.scans()}
+    finally:
+        source.close()
+    assert len(mounts) == 1
+    (mount,) = mounts
+    assert (mount.x, mount.theta) == (0.0, pytest.approx(math.pi / 2))
+    assert abs(mount.y) < 1e-5  # the log's own y (0, as the six decimals write it)
+
+    fixed = tmp_path / "mount.toml"
+    fixed.write_text("[laser]\nmount_x_m = 0.0\nmount_y_m = 0.0\nmount_deg = 0.0\n")
+    truth = true_log.parent / "truth.json"
+    runs, ate = {}, {}
+    for name, log, extra in (("true", true_log, ()), ("wrong", wrong, ()),
+                             ("fixed", wrong, ("--config", fixed))):
+        r = cli("process", log, "-o", tmp_path / name, "-q", *extra)
+        assert r.exit_code == 0, r.stderr
+        runs[name] = (tmp_path / name / "trajectory.tum").read_bytes()
+        r = cli("evaluate", tmp_path / name, "--truth", truth, "--json")
+        ate[name] = json.loads(r.stdout)["truth"]["trajectory"]["ate_rmse_m"]
+    assert runs["fixed"] == runs["true"]
+    assert ate["wrong"] > 2 * ate["true"], ate
