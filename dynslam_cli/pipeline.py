@@ -20,9 +20,9 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from dynslam_cli.config import Config
+from dynslam_cli.localization.backend import BackEnd
 from dynslam_cli.localization.cornerslam import CornerSlam
 from dynslam_cli.localization.frontend import MeasuredScans, ScanMeasurer, match_counts
-from dynslam_cli.localization.loops import LoopCloser
 from dynslam_cli.mapping.dynamic import DynamicMapper
 from dynslam_cli.mapping.grid import GridStack
 from dynslam_cli.prior import PriorSession
@@ -52,7 +52,7 @@ class DynamicSlam:
         self._measure = (front.measurement if front is not None else
                          ScanMeasurer.configured(config.ekf, config.match, config.corners))
         self._motion_sources: Counter[str] = Counter()
-        self._loops = (LoopCloser(config.loop, config.ekf.noise,
+        self._loops = (BackEnd(config.loop, config.ekf.noise,
                                   prior.walls() if prior is not None else None)
                        if use_graph else None)
         self._store = ScanStore() if use_graph else None

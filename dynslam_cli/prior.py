@@ -23,6 +23,7 @@ import numpy as np
 
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, inverse, transform_points
+from dynslam_cli.localization.backend import PriorWalls
 from dynslam_cli.localization.frontend import ScanMeasurer
 from dynslam_cli.localization.globalsearch import (
     BlurredMap,
@@ -32,7 +33,6 @@ from dynslam_cli.localization.globalsearch import (
     log_likelihood,
     place,
 )
-from dynslam_cli.localization.loops import PriorWalls
 from dynslam_cli.localization.scanmatch import scan_points, thin
 from dynslam_cli.mapping.changes import ChangeRecorder
 from dynslam_cli.mapping.grid import GridStack, OccupancyMap, logit, steps

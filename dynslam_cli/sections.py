@@ -606,7 +606,7 @@ class LoopConfig:
     """Candidates lie within this radius of the current estimate ..."""
     drift_per_m: float = 0.05
     """... plus this share of the graph distance between the two nodes (the driving between
-    them, loop closures being shortcuts: see :meth:`LoopCloser.graph_distance`) ..."""
+    them, loop closures being shortcuts: see :meth:`BackEnd.graph_distance`) ..."""
     max_search_radius_m: float = 6.0
     """... up to this."""
     search_angle_deg: float = 10.0

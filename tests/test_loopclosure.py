@@ -8,16 +8,11 @@ import numpy as np
 import pytest
 
 from dynslam_cli.geometry import compose, relative
+from dynslam_cli.localization.backend import BackEnd, Closure, LoopConfig
 from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
-from dynslam_cli.localization.loops import (
-    Closure,
-    LoopCloser,
-    LoopConfig,
-    correlative_match,
-    likelihood_field,
-)
+from dynslam_cli.localization.loopmatch import correlative_match, likelihood_field
 from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
 from dynslam_cli.sections import IcpConfig
 from dynslam_cli.simulate import ray_cast
@@ -169,12 +164,12 @@ def test_a_large_graph_is_solved_by_conjugate_gradients_to_the_same_poses(monkey
 def test_graph_distance_stops_at_the_nearest_nodes():
     """The window of an online optimization: the nodes nearest to the closure's two ends,
     and no more than asked for; and a search for given nodes stops once it has them."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
+    closer = BackEnd(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
-    d = closer._links.shortest_paths([0, 40], max_nodes=6)
+    d = closer.graph.distances([0, 40], max_nodes=6)
     assert sorted(np.flatnonzero(np.isfinite(d))) == [0, 1, 2, 38, 39, 40]
-    d = closer._links.shortest_paths([40], targets=np.array([37]))  # stops once it has 37
+    d = closer.graph.distances([40], targets=np.array([37]))  # stops once it has 37
     assert d[37] == pytest.approx(1.5) and np.isinf(d[:30]).all()
     assert closer.graph_distance(40, targets=np.array([0]))[0] == pytest.approx(20.0)
 
@@ -212,7 +207,7 @@ def test_loop_closer_closes_a_revisit(submap_nodes):
     """Drive out and back while the estimate's heading drifts 0.4° a step: the return is tied
     to the places seen on the way out, however large the submaps (the old node's submap holds
     none of the stretch just driven: at 8 nodes each side it reached it and closed less)."""
-    closer = LoopCloser(LoopConfig(min_travel_m=3.0, submap_nodes=submap_nodes),
+    closer = BackEnd(LoopConfig(min_travel_m=3.0, submap_nodes=submap_nodes),
                         EkfConfig().noise)
     path = [Pose2D(x, 0.0, 0.0) for x in np.arange(0.0, 3.01, 0.5)]
     path += [Pose2D(x, 0.5, 0.0) for x in np.arange(3.0, -0.01, -0.5)]
@@ -283,7 +278,7 @@ def test_match_information_in_a_corridor_is_degenerate_along_it():
 def test_a_false_loop_closure_waits_and_never_enters_alone():
     """A closure that would bend the graph is held; it enters only with a second closure
     that tells the same story. A lone false one never does, a pair of true ones do."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
+    closer = BackEnd(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):  # a straight run, nodes every 0.5 m
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -307,7 +302,7 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
     """Matches made a step apart see the same view and share its aliasing (a corridor's
     doors matched one door off): they agree with each other, and still wait until a match
     from farther along (``pair_min_separation_m``) tells the same story."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
+    closer = BackEnd(LoopConfig(min_travel_m=1e9), EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
     info = np.diag([400.0, 400.0, 3000.0])
@@ -326,7 +321,7 @@ def test_two_closures_from_nearly_the_same_place_do_not_vouch_for_each_other():
 def test_graph_distance_follows_the_chain_and_takes_loop_shortcuts():
     """The search window grows with the driving between two nodes through the graph, so a
     place tied by a loop closure is near again however long ago it was first seen."""
-    closer = LoopCloser(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
+    closer = BackEnd(LoopConfig(min_travel_m=1e9, max_search_radius_m=100.0),
                         EkfConfig().noise)
     for x in np.arange(0.0, 20.01, 0.5):
         closer.add_node(Pose2D(x, 0.0, 0.0), robot_points(Pose2D()))
@@ -364,7 +359,7 @@ def test_matched_chain_edges_are_loose_where_the_matches_could_not_see():
     scan = Scan(0.0, np.full(len(ANGLES), 5.0), ANGLES, 20.0, Pose2D())
     infos = {}
     for mode in ("motion", "matched"):
-        closer = LoopCloser(LoopConfig(min_travel_m=1e9, chain_information=mode),
+        closer = BackEnd(LoopConfig(min_travel_m=1e9, chain_information=mode),
                             EkfConfig().noise)
         step = Pose2D(0.1, 0.0, 0.0)
         for k in range(6):  # 0.5 m: a node at the first scan and one at the last

@@ -4,7 +4,7 @@ association, and Table 3 — a landmark corrects the pose only if its place in S
 Landmarks pass a tentative stage first (seen ``confirm_observations`` times close together)
 so that clutter does not fill the state. Per-scan cost is bounded by the size of the state:
 a landmark not seen for ``active_window_scans`` leaves the filter (the pose graph, not the
-EKF, closes long loops: see dynslam_cli.localization.loops) and the state never holds more than
+EKF, closes long loops: see dynslam_cli.localization.backend) and the state never holds more than
 ``max_landmarks``. Landmarks that leave are kept for the landmark map if they were seen
 ``keep_observations`` times; rarer ones were clutter and are forgotten.
 """

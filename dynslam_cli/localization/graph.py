@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from dynslam_cli.geometry import wrap_angles
-from dynslam_cli.localization import _graph
+from dynslam_cli.localization import _graph, _loops
 
 CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 # Above this many moving nodes a step is solved by conjugate gradients instead of LDLᵀ: where
@@ -28,6 +28,7 @@ CAUCHY_C = 3.0  # χ² scale of the robust kernel on loop edges
 DIRECT_MAX_NODES = 2000
 CG_TOLERANCE = 1e-8  # relative residual of the conjugate-gradient solve
 MIN_MOVING_NODES = 200  # an optimization bounded in flops still moves this many nodes
+LOOP_EDGE_LENGTH_M = 1e-3  # a loop closure's length in the graph distance
 
 
 class Edges:
@@ -52,15 +53,59 @@ class Edges:
         return tuple(a[:self.count] for a in self._store)
 
 
+class Links:
+    """The graph's edges as adjacency lists (for :func:`_loops.shortest_paths`), grown by
+    doubling: ``head[v]`` is node v's first half-edge, each half-edge leads ``to`` a node
+    with a ``length`` and is followed by ``nxt`` (-1 ends a list)."""
+
+    def __init__(self) -> None:
+        self.nodes = 0
+        self.head = np.full(64, -1, np.intp)
+        self.nxt, self.to = np.zeros(64, np.intp), np.zeros(64, np.intp)
+        self.length = np.zeros(64)
+        self.count = 0
+
+    def add_node(self) -> None:
+        if self.nodes == len(self.head):
+            self.head = np.concatenate((self.head, np.full(len(self.head), -1, np.intp)))
+        self.nodes += 1
+
+    def link(self, i: int, j: int, length: float) -> None:
+        """An edge between nodes i and j (both ways)."""
+        if self.count + 2 > len(self.to):
+            self.nxt, self.to, self.length = (np.concatenate((a, np.zeros_like(a)))
+                                              for a in (self.nxt, self.to, self.length))
+        for a, b in ((i, j), (j, i)):
+            e = self.count
+            self.to[e], self.length[e], self.nxt[e] = b, length, self.head[a]
+            self.head[a] = e
+            self.count += 1
+
+    def shortest_paths(self, sources: list[int], limit: float = math.inf,
+                       max_nodes: int | None = None, targets: np.ndarray | None = None
+                       ) -> np.ndarray:
+        """Distances from the nearest of ``sources`` to every node, ∞ beyond ``limit`` and
+        beyond the ``max_nodes`` nearest; with ``targets``, exact for them (others may be ∞
+        where the search stopped, once it had them all)."""
+        return _loops.shortest_paths(self.head, self.nxt, self.to, self.length, self.nodes,
+                                     np.asarray(sources, dtype=np.intp), limit,
+                                     self.nodes if max_nodes is None else max_nodes,
+                                     np.zeros(0, np.intp) if targets is None
+                                     else np.asarray(targets, dtype=np.intp))
+
+
 class PoseGraph:
-    """Nodes, edges and :meth:`optimize`."""
+    """Nodes, edges, :meth:`optimize`, and the graph distance between nodes
+    (:meth:`distances`)."""
 
     def __init__(self) -> None:
         self.poses = np.zeros((0, 3))
         self._capacity_poses = np.zeros((64, 3))
         self.edges = Edges()
+        self._links = Links()
 
     def add_node(self, pose: np.ndarray) -> int:
+        self._links.add_node()
         n = len(self.poses)
         if n == len(self._capacity_poses):
             grown = np.zeros((2 * n, 3))
@@ -72,7 +117,21 @@ class PoseGraph:
 
     def add_edge(self, i: int, j: int, z: np.ndarray, info: np.ndarray,
                  robust: bool = False) -> None:
+        """Node j seen from node i at ``z`` with information ``info``; ``robust``: a loop
+        closure (the Cauchy kernel; a shortcut of LOOP_EDGE_LENGTH_M in the graph
+        distance, where another edge is as long as its motion's translation)."""
         self.edges.add(i, j, z, info, robust)
+        self._links.link(i, j, LOOP_EDGE_LENGTH_M if robust
+                         else math.hypot(float(z[0]), float(z[1])))
+
+    def distances(self, sources: list[int], limit: float = math.inf,
+                  max_nodes: int | None = None, targets: np.ndarray | None = None
+                  ) -> np.ndarray:
+        """How far each node is through the graph from the nearest of ``sources``: the
+        shortest path along the edges (metres driven, loop closures shortcuts of ~0);
+        ∞ beyond ``limit`` and beyond the ``max_nodes`` nearest; with ``targets``, exact for
+        them (others may be ∞ where the search stopped, once it had them all)."""
+        return self._links.shortest_paths(sources, limit, max_nodes, targets)
 
     def optimize(self, iterations: int = 10, cauchy_c: float = CAUCHY_C,
                  nodes: np.ndarray | None = None, max_flops: float = math.inf) -> None:

@@ -1,4 +1,6 @@
-"""Loop closure: recognise a place seen long ago and tie the two poses together.
+"""The back end: the pose graph of the run, its loop closures, and each scan's place in it.
+
+Loop closure recognises a place seen long ago and ties the two poses together.
 
 The EKF (Sec. 4) keeps only the landmarks of the last stretch of the run; what drift it
 leaves over a long loop is removed here, the way graph-based SLAM does it. Every key scan
@@ -9,8 +11,7 @@ the two nodes through the graph, where a loop already closed is a shortcut), the
 around the new node are matched against those around the old one:
 
 1. **correlative search** over a window of translations and rotations on a likelihood field
-   of the old scans (a coarse pass on a max-pooled field bounds every fine cell below it,
-   then the best coarse cells are searched finely);
+   of the old scans (:mod:`~dynslam_cli.localization.loopmatch`);
 2. **ICP refinement** (point-to-line); the edge's information comes from the search's
    ambiguity (the spread of the poses that could score as well), so a match along a
    featureless corridor constrains only the directions it can see;
@@ -43,160 +44,26 @@ from dynslam_cli.geometry import (
     transform_points,
     wrap_angles,
 )
-from dynslam_cli.localization import _loops
-from dynslam_cli.localization._match import PointIndex
 from dynslam_cli.localization.ekf import motion_std
-from dynslam_cli.localization.globalsearch import BlurredMap, gaussian
+from dynslam_cli.localization.globalsearch import BlurredMap
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
+from dynslam_cli.localization.loopmatch import (
+    ANGLE_STEP_DEG,
+    FIELD_RES_M,
+    LikelihoodField,
+    constraint_ratio,
+    correlative_match,
+    likelihood_field,
+)
 from dynslam_cli.localization.scanmatch import icp, scan_points
 from dynslam_cli.sections import LoopConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
-FIELD_RES_M = 0.05
-FIELD_REACH_CELLS = 7  # the field is 0 beyond 0.35 m (4.4 σ) of every point
-COARSE_CELLS = 6  # the coarse pass steps this many fine cells (0.3 m)
-TOP_COARSE = 6
-ANGLE_STEP_DEG = 1.0
-NORMAL_NEIGHBOURS = 6
 CANDIDATE_BATCH = 8  # loop candidates whose graph distance is found first (_candidate)
-LOOP_EDGE_LENGTH_M = 1e-3  # a loop closure's length in the graph distance
 # Added to a chain edge's covariance: a millimetre and 0.01° (no edge infinitely sure).
 CHAIN_FLOOR = np.diag([1e-6, 1e-6, math.radians(0.01) ** 2])
 ONLINE_ITERATIONS = 1  # Gauss-Newton steps per optimization while the log runs
 FINAL_ITERATIONS = 10
-
-
-def _field_kernels() -> tuple[np.ndarray, np.ndarray]:
-    """The fine field around one occupied cell, exp(−d²/2σ²) out to FIELD_REACH_CELLS, and
-    its max over the coarse pass's window (COARSE_CELLS + 1 cells square): the value at the
-    window's cell nearest the centre, as the field falls with distance."""
-    h, w = FIELD_REACH_CELLS, COARSE_CELLS // 2
-    wide = np.arange(-h - w, h + w + 1)
-    return (gaussian(np.arange(-h, h + 1) * FIELD_RES_M),
-            gaussian(np.sign(wide) * np.maximum(np.abs(wide) - w, 0) * FIELD_RES_M))
-
-
-FINE_KERNEL, COARSE_KERNEL = _field_kernels()
-FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
-
-
-@dataclass
-class LikelihoodField:
-    """exp(−d²/2σ²) of the distance d from each cell to the nearest occupied cell of the
-    submap, on a fine grid, and its max-pooled copy for the coarse pass; the submap's points
-    indexed, with their normals for ICP."""
-
-    fine: np.ndarray
-    coarse: np.ndarray
-    origin: np.ndarray  # map coordinates of cell (0, 0)
-    index: PointIndex
-
-
-def likelihood_field(points: np.ndarray) -> LikelihoodField:
-    lo = points.min(axis=0) - FIELD_MARGIN_M
-    hi = points.max(axis=0) + FIELD_MARGIN_M
-    shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
-    cols, rows = np.floor((points - lo) / FIELD_RES_M + 0.5).astype(np.intp).T.copy()
-    fine = np.zeros((shape[1], shape[0]))
-    coarse = np.zeros((shape[1], shape[0]))
-    _loops.splat_max(fine, rows, cols, FINE_KERNEL)
-    _loops.splat_max(coarse, rows, cols, COARSE_KERNEL)
-    index = PointIndex(points, neighbours=NORMAL_NEIGHBOURS)
-    return LikelihoodField(fine, coarse, lo, index)
-
-
-def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
-            base: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
-    """Mean field value of ``pts`` rotated by each θ and moved to base + (tx, ty) cells, for
-    every (θ, ty, tx): an array of shape (len(thetas), len(ty), len(tx))."""
-    return _loops.mean_scores(grid, float(origin[0]), float(origin[1]), FIELD_RES_M, pts,
-                               float(base[0]), float(base[1]), thetas,
-                               tx.astype(np.intp), ty.astype(np.intp))
-
-
-def constraint_ratio(points: np.ndarray) -> float:
-    """How well a set of points pins down a position, weakest direction over strongest
-    (eigenvalues of the sum of n nᵀ over the points' normals): about 0 for the two walls of a
-    corridor, which say nothing about the position along it."""
-    n = PointIndex(points, neighbours=NORMAL_NEIGHBOURS).normals()
-    ev = np.linalg.eigvalsh(n.T @ n)
-    return float(ev[0] / max(ev[1], 1e-12))
-
-
-@dataclass(frozen=True)
-class Match:
-    """A correlative match: the pose, its score (mean likelihood of the points, 0–1) and the
-    covariance of the poses that score almost as well (its ambiguity)."""
-
-    pose: Pose2D
-    score: float
-    cov: np.ndarray
-
-
-def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
-                      window_m: float, window_deg: float) -> Match:
-    """Best pose of ``pts``' frame in the field's frame within the window around ``guess``.
-
-    Scores are weighed by a mild preference for the guess's position, so along a
-    featureless corridor (where every offset scores the same) the estimate stays put
-    instead of sliding."""
-    half = math.ceil(window_m / (COARSE_CELLS * FIELD_RES_M))
-    coarse_t = np.arange(-half, half + 1) * COARSE_CELLS
-    n_ang = math.ceil(window_deg / ANGLE_STEP_DEG)
-    dthetas = np.radians(np.arange(-n_ang, n_ang + 1) * ANGLE_STEP_DEG)
-    base = np.array([guess.x, guess.y])
-    bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base, coarse_t,
-                     coarse_t)
-    t_m = coarse_t * FIELD_RES_M
-    ranked = bounds * _preference(t_m[None, None, :], t_m[None, :, None], window_m)
-    fine_t = np.arange(-(COARSE_CELLS // 2), COARSE_CELLS // 2 + 1)
-    sub_angles = np.radians(np.array([-0.5, 0.0, 0.5]) * ANGLE_STEP_DEG)
-    best = (-1.0, 0.0, guess)  # (weighed score, score, pose)
-    for flat in np.argsort(ranked, axis=None)[::-1][:TOP_COARSE]:
-        a, r, c = np.unravel_index(int(flat), ranked.shape)
-        if ranked[a, r, c] <= best[0]:
-            break  # the coarse score bounds every fine score below it
-        tx, ty = coarse_t[c] + fine_t, coarse_t[r] + fine_t
-        ths = dthetas[a] + sub_angles
-        fine = _scores(field.fine, field.origin, pts, guess.theta + ths, base, tx, ty)
-        for th, sc in zip(ths, fine, strict=True):
-            w = sc * _preference(tx[None, :] * FIELD_RES_M, ty[:, None] * FIELD_RES_M,
-                                 window_m)
-            i, j = np.unravel_index(int(np.argmax(w)), w.shape)
-            if w[i, j] > best[0]:
-                best = (float(w[i, j]), float(sc[i, j]), Pose2D(
-                    guess.x + tx[j] * FIELD_RES_M, guess.y + ty[i] * FIELD_RES_M,
-                    guess.theta + th))
-    _, score, pose = best
-    return Match(pose, score, _ambiguity(bounds, t_m, dthetas, score))
-
-
-DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge
-AMBIGUITY_SHARE = 0.95  # poses whose coarse bound reaches this share of the best score
-
-
-def _preference(dx_m: np.ndarray, dy_m: np.ndarray, window_m: float) -> np.ndarray:
-    """Weight of an offset from the guess's position (broadcast over the arguments): 1 at
-    the guess, falling to 1 − DISTANCE_PREFERENCE at the window's corner. Its heading gets
-    none: walls pin a heading, and the heading is what a loop closure most often corrects
-    (preferring the guess's, closures kept 2.5–8° of a wrong graph's heading on fhw)."""
-    d2 = (dx_m ** 2 + dy_m ** 2) / max(window_m, 1e-9) ** 2
-    return 1.0 - DISTANCE_PREFERENCE * 0.5 * d2
-
-
-# Spread of one coarse cell (uniform over its width): the least uncertainty a match has.
-CELL_COV = np.diag([COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
-                    math.radians(ANGLE_STEP_DEG)]) ** 2 / 12.0
-
-
-def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
-               score: float) -> np.ndarray:
-    """Covariance (x, y, θ) of the coarse cells that could hold a pose about as good as the
-    best: wide along a corridor, small where the scene pins the match down."""
-    a, r, c = np.nonzero(bounds >= AMBIGUITY_SHARE * score)
-    if len(a) < 2:
-        return CELL_COV.copy()
-    return np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV
 
 
 class PriorWalls(NamedTuple):
@@ -219,49 +86,10 @@ class Closure:
     chi2: float
 
 
-class Links:
-    """The graph's edges as adjacency lists (for :func:`_loops.shortest_paths`), grown by
-    doubling: ``head[v]`` is node v's first half-edge, each half-edge leads ``to`` a node
-    with a ``length`` and is followed by ``nxt`` (-1 ends a list)."""
-
-    def __init__(self) -> None:
-        self.nodes = 0
-        self.head = np.full(64, -1, np.intp)
-        self.nxt, self.to = np.zeros(64, np.intp), np.zeros(64, np.intp)
-        self.length = np.zeros(64)
-        self.count = 0
-
-    def add_node(self) -> None:
-        if self.nodes == len(self.head):
-            self.head = np.concatenate((self.head, np.full(len(self.head), -1, np.intp)))
-        self.nodes += 1
-
-    def link(self, i: int, j: int, length: float) -> None:
-        """An edge between nodes i and j (both ways)."""
-        if self.count + 2 > len(self.to):
-            self.nxt, self.to, self.length = (np.concatenate((a, np.zeros_like(a)))
-                                              for a in (self.nxt, self.to, self.length))
-        for a, b in ((i, j), (j, i)):
-            e = self.count
-            self.to[e], self.length[e], self.nxt[e] = b, length, self.head[a]
-            self.head[a] = e
-            self.count += 1
-
-    def shortest_paths(self, sources: list[int], limit: float = math.inf,
-                       max_nodes: int | None = None, targets: np.ndarray | None = None
-                       ) -> np.ndarray:
-        """Distances from the nearest of ``sources`` to every node, ∞ beyond ``limit`` and
-        beyond the ``max_nodes`` nearest; with ``targets``, exact for them (others may be ∞
-        where the search stopped, once it had them all)."""
-        return _loops.shortest_paths(self.head, self.nxt, self.to, self.length, self.nodes,
-                                     np.asarray(sources, dtype=np.intp), limit,
-                                     self.nodes if max_nodes is None else max_nodes,
-                                     np.zeros(0, np.intp) if targets is None
-                                     else np.asarray(targets, dtype=np.intp))
-
-
-class LoopCloser:
-    """Keeps the graph, the key scans and the closures."""
+class BackEnd:
+    """The pose graph, its nodes (the EKF's pose and the scan points at each), the scans'
+    offsets to their nodes and the loop closures: :meth:`place` takes a scan at the EKF's
+    pose and gives its pose in the map frame."""
 
     def __init__(self, cfg: LoopConfig, motion_noise: NoiseModel,
                  prior: PriorWalls | None = None) -> None:
@@ -276,7 +104,6 @@ class LoopCloser:
         self.closures = 0
         self.attempts = 0
         self._last_attempt_m = -math.inf
-        self._links = Links()  # the graph, for its distances
         self._fields: OrderedDict[tuple[int, int], LikelihoodField] = OrderedDict()
         self._pending: deque[Closure] = deque(maxlen=cfg.pending_closures)
         self._chain = (Pose2D(), np.zeros((3, 3)), 0)  # since the last node: motion, its
@@ -307,9 +134,7 @@ class LoopCloser:
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), self._chain_information(z))
-        step = math.hypot(z.x, z.y)
-        self._append(local_pose, points, self.path[-1] + step)
-        self._links.link(k_prev, k, step)
+        self._append(local_pose, points, self.path[-1] + math.hypot(z.x, z.y))
         moved = self._try_closure(k)
         return self._try_prior(k) or moved
 
@@ -330,7 +155,6 @@ class LoopCloser:
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
     def _append(self, local_pose: Pose2D, points: np.ndarray, path: float) -> None:
-        self._links.add_node()
         self.local_poses.append(local_pose)
         self.points.append(points)
         self.path.append(path)
@@ -345,7 +169,7 @@ class LoopCloser:
         stops once it has them)."""
         cfg = self.cfg
         limit = (cfg.max_search_radius_m - cfg.search_radius_m) / max(cfg.drift_per_m, 1e-9)
-        return self._links.shortest_paths([k], limit, targets=targets)
+        return self.graph.distances([k], limit, targets=targets)
 
     def _candidate(self, k: int, old: int) -> tuple[int, float] | None:
         """The old node to match node k against and how far it is through the graph; None if
@@ -457,7 +281,6 @@ class LoopCloser:
         for c in closures:
             self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
                                 robust=True)
-            self._links.link(c.old, c.new, LOOP_EDGE_LENGTH_M)
         self.closures += len(closures)
 
     def _chi2(self, i: int, k: int, z: Pose2D, info: np.ndarray) -> float:
@@ -509,7 +332,7 @@ class LoopCloser:
         if around is None:
             self.graph.optimize(iterations)
         else:
-            near = self._links.shortest_paths(around, max_nodes=self.cfg.online_nodes)
+            near = self.graph.distances(around, max_nodes=self.cfg.online_nodes)
             reached = np.flatnonzero(np.isfinite(near))
             self.graph.optimize(iterations, max_flops=self.cfg.online_flops,
                                 nodes=reached[np.argsort(near[reached], kind="stable")])
