@@ -372,3 +372,29 @@ def test_matched_chain_edges_are_loose_where_the_matches_could_not_see():
     assert matched[1, 1] > 100 * matched[0, 0]
     # five matches, each 5 cm along: the edge's standard deviation along is about 11 cm
     assert 1.0 / math.sqrt(matched[0, 0]) == pytest.approx(1.5 * 0.05 * math.sqrt(5), rel=0.05)
+
+
+def test_a_place_revisited_for_hours_does_not_grow_the_graph(cli, tmp_path):
+    """The arena driven round and round: with ``[loop] revisit`` the robot, back on nodes
+    a closure has tied to the graph, is placed on them instead of making new ones, so the
+    graph after 300 s holds about as many nodes as after 150 s (without it: twice as
+    many), and the trajectory stays within a centimetre of the truth."""
+    import json
+
+    r = cli("simulate", "arena", "-o", tmp_path / "sim", "--duration", "300", "--seed", "0")
+    assert r.exit_code == 0, r.output
+    log, truth = tmp_path / "sim" / "arena.log", tmp_path / "sim" / "truth.json"
+    config = tmp_path / "revisit.toml"
+    config.write_text("[loop]\nrevisit = true\n")
+    nodes = {}
+    for name, extra in (("plain", ()), ("revisit", ("--config", config))):
+        for end in (150, 300):
+            out = tmp_path / f"{name}-{end}"
+            assert cli("process", log, "-o", out, "-q", "--end", end, *extra).exit_code == 0
+            counts = json.loads((out / "summary.json").read_text())["localization"]
+            nodes[name, end] = counts["graph_nodes"]
+        r = cli("evaluate", out, "--truth", truth, "--json")
+        assert json.loads(r.stdout)["truth"]["trajectory"]["ate_rmse_m"] < 0.01, name
+    assert counts["revisits"] > nodes["revisit", 300]  # most placements are revisits
+    assert nodes["plain", 300] > 1.8 * nodes["plain", 150]
+    assert nodes["revisit", 300] < 1.1 * nodes["revisit", 150]

@@ -74,6 +74,15 @@ class PriorWalls(NamedTuple):
     blurred: BlurredMap
 
 
+class Anchor(NamedTuple):
+    """Where a revisit placed the robot (``[loop] revisit``): at the EKF's pose ``local``,
+    node ``node`` saw it at ``seen`` (the match)."""
+
+    node: int
+    seen: Pose2D
+    local: Pose2D
+
+
 @dataclass(frozen=True)
 class Closure:
     """A loop-closure match: node ``new`` seen from node ``old`` at ``z``, its information,
@@ -114,23 +123,39 @@ class BackEnd:
         self._last_prior_m = -math.inf
         self.prior_matches = 0
         self._scan_nodes = array("i")  # per scan placed: its node ...
-        self._scan_offsets = array("d")  # ... and its pose in that node's EKF frame
+        self._scan_offsets = array("d")  # ... and its pose in that node's frame
+        self._node_scans = array("i")  # per node: the number of the scan it was made at
+        self._anchor: Anchor | None = None  # where the robot is placed on an old node ...
+        self._anchors: list[Anchor] = []  # ... and where it was (revisit)
+        self._scan_anchors = array("i")  # per scan placed: its anchor (-1: none; revisit)
+        self._tied = array("b")  # per node: an end of a loop closure (revisit)
+        self.revisits = 0
 
     def wants_node(self, local_pose: Pose2D) -> bool:
-        return not self.local_poses or moved_far(self.local_poses[-1], local_pose,
-                                                 self.cfg.node_distance_m,
-                                                 math.radians(self.cfg.node_angle_deg))
+        """Whether the robot has moved far enough from the last node (or where a revisit
+        last placed it) for a new one."""
+        if not self.local_poses:
+            return True
+        since = self.local_poses[-1] if self._anchor is None else self._anchor.local
+        return moved_far(since, local_pose, self.cfg.node_distance_m,
+                         math.radians(self.cfg.node_angle_deg))
 
     def add_node(self, local_pose: Pose2D, points: np.ndarray) -> bool:
         """A new node at the EKF's pose, chained to the previous node; then a loop closure
-        attempt. Returns True if the graph was optimized (the map frame moved)."""
+        attempt. Returns True if the graph was optimized (the map frame moved). After a
+        revisit (:meth:`revisit`) the chain goes on from the node that placed the robot."""
         graph = self.graph
+        self._node_scans.append(len(self._scan_nodes))
         if not self.local_poses:
             graph.add_node(np.array([local_pose.x, local_pose.y, local_pose.theta]))
             self._append(local_pose, points, 0.0)
             return False
-        k_prev = len(self.local_poses) - 1
-        z = relative(self.local_poses[-1], local_pose)
+        anchor, self._anchor = self._anchor, None
+        if anchor is None:
+            k_prev = len(self.local_poses) - 1
+            z = relative(self.local_poses[-1], local_pose)
+        else:
+            k_prev, z = anchor.node, compose(anchor.seen, relative(anchor.local, local_pose))
         est = compose(self.pose(k_prev), z)
         k = graph.add_node(np.array([est.x, est.y, est.theta]))
         graph.add_edge(k_prev, k, np.array([z.x, z.y, z.theta]), self._chain_information(z))
@@ -155,6 +180,8 @@ class BackEnd:
         return Pose2D(float(x[0]), float(x[1]), float(x[2]))
 
     def _append(self, local_pose: Pose2D, points: np.ndarray, path: float) -> None:
+        if self.cfg.revisit:
+            self._tied.append(0)
         self.local_poses.append(local_pose)
         self.points.append(points)
         self.path.append(path)
@@ -214,7 +241,7 @@ class BackEnd:
         i, graph_m = found
         radius = float(self.radius(graph_m))
         window_deg = min(cfg.search_angle_deg + graph_m / 10.0, cfg.max_search_angle_deg)
-        found = self._match(lambda: self._field(i, old), k,
+        found = self._match(lambda: self._field(i, old), self._query(k),
                             relative(self.pose(i), self.pose(k)), radius, window_deg)
         if found is None:
             return False
@@ -230,7 +257,7 @@ class BackEnd:
                 or self.path[k] - self._last_prior_m < cfg.attempt_every_m):
             return False
         self._last_prior_m = self.path[k]
-        found = self._match(lambda: field, k, self.pose(k), cfg.search_radius_m,
+        found = self._match(lambda: field, self._query(k), self.pose(k), cfg.search_radius_m,
                             cfg.search_angle_deg)
         if found is None:
             return False
@@ -240,15 +267,19 @@ class BackEnd:
         z = relative(self.pose(0), pose)
         return self._close(Closure(0, k, z, info, self._chi2(0, k, z, info)), k)
 
-    def _match(self, field_of: Callable[[], LikelihoodField], k: int, guess: Pose2D,
-               radius: float, window_deg: float
+    def _query(self, k: int) -> np.ndarray:
+        """Node k's scan points and those of ``query_nodes`` nodes before it (node k's
+        frame): what a closure at node k matches."""
+        return self._submap(k, range(max(0, k - self.cfg.query_nodes), k + 1))
+
+    def _match(self, field_of: Callable[[], LikelihoodField], query: np.ndarray,
+               guess: Pose2D, radius: float, window_deg: float
                ) -> tuple[Pose2D, np.ndarray, np.ndarray] | None:
-        """Node k's scans (and ``query_nodes`` before it) placed on the field ``field_of``
-        makes (only if they are worth matching) within the window around ``guess`` (the
-        field's frame), refined by ICP, the information of the match and the points matched
-        (node k's frame); None where it is poor, ambiguous or a corridor's."""
+        """The points ``query`` placed on the field ``field_of`` makes (only if they are
+        worth matching) within the window around ``guess`` (the field's frame), refined by
+        ICP, the information of the match and the points matched; None where it is poor,
+        ambiguous or a corridor's."""
         cfg = self.cfg
-        query = self._submap(k, range(max(0, k - cfg.query_nodes), k + 1))
         if constraint_ratio(query) < cfg.min_constraint_ratio:
             return None  # a corridor: it could be anywhere along it
         field = field_of()
@@ -281,6 +312,8 @@ class BackEnd:
         for c in closures:
             self.graph.add_edge(c.old, c.new, np.array([c.z.x, c.z.y, c.z.theta]), c.info,
                                 robust=True)
+            if self.cfg.revisit:
+                self._tied[c.old] = self._tied[c.new] = 1
         self.closures += len(closures)
 
     def _chi2(self, i: int, k: int, z: Pose2D, info: np.ndarray) -> float:
@@ -369,27 +402,34 @@ class BackEnd:
         """The graph's correction of the EKF frame at ``node``: map pose ⊖ EKF pose."""
         return compose(self.pose(node), inverse(self.local_poses[node]))
 
+    def _anchor_correction(self, anchor: Anchor) -> Pose2D:
+        """The correction of the EKF frame where a revisit placed the robot."""
+        return compose(compose(self.pose(anchor.node), anchor.seen), inverse(anchor.local))
+
     def to_map(self, points: np.ndarray) -> np.ndarray:
-        """EKF-frame positions (N×2) into the map frame by the last node's correction."""
+        """EKF-frame positions (N×2) into the map frame by the last node's correction (or
+        the last revisit's)."""
         if not self.local_poses or len(points) == 0:
             return points
-        return transform_points(self.correction(len(self.local_poses) - 1), points)
+        return transform_points(self.correction(len(self.local_poses) - 1)
+                                if self._anchor is None
+                                else self._anchor_correction(self._anchor), points)
 
     def loop_closures(self) -> np.ndarray:
         """The closures in the graph, K × 5: the scan at which each end's node was made (old,
         new) and the new node seen from the old (x, y, θ) as matched (a prior's matches to
         its walls are closures to the first node)."""
         i, j, z, _, loop = self.graph.edges.arrays()
-        made = np.searchsorted(np.asarray(self._scan_nodes, dtype=np.int64),
-                               np.arange(len(self.local_poses)))
+        made = np.asarray(self._node_scans, dtype=np.int64)
         return np.column_stack((made[i[loop]], made[j[loop]], z[loop]))
 
     def counts(self) -> dict[str, int]:
         """The graph's nodes, the closures tried and made (those to the prior's walls
         among them; and how many scans matched those) for ``summary.json``."""
         prior = {"prior_matches": self.prior_matches} if self._prior is not None else {}
+        revisits = {"revisits": self.revisits} if self.cfg.revisit else {}
         return {"graph_nodes": len(self.local_poses), "loop_closure_attempts": self.attempts,
-                "loop_closures": self.closures, **prior}
+                "loop_closures": self.closures, **revisits, **prior}
 
     def place(self, local_pose: Pose2D, scan: Scan,
               motion: tuple[Pose2D, np.ndarray] | None = None) -> Pose2D:
@@ -397,23 +437,87 @@ class BackEnd:
         since the scan before and its covariance, as the EKF predicted with): a new node (and
         a loop closure attempt) where the robot has moved far enough from the last, else
         kept as an offset from the last node; returns the scan's pose in the map frame (the
-        node's, corrected)."""
+        node's, corrected). With ``revisit``, where the robot is back on a node of the
+        graph, it is placed on that node instead of making one (:meth:`revisit`)."""
         if motion is not None and self.cfg.chain_information == "matched":
             moved, cov, scans = self._chain
             self._chain = (compose(moved, motion[0]),
                            compound_covariance(moved, cov, motion[0], motion[1]), scans + 1)
         if self.wants_node(local_pose):
-            self.add_node(local_pose, scan_points(scan, self.cfg.max_range_m))
-        node = len(self.local_poses) - 1
-        offset = relative(self.local_poses[node], local_pose)
+            points = scan_points(scan, self.cfg.max_range_m)
+            if not (self.cfg.revisit and self.revisit(local_pose, points)):
+                self.add_node(local_pose, points)
+        node, offset = self._offset(local_pose)
         self._scan_nodes.append(node)
         self._scan_offsets.extend((offset.x, offset.y, offset.theta))
+        if self.cfg.revisit:
+            self._scan_anchors.append(-1 if self._anchor is None else len(self._anchors) - 1)
         return compose(self.pose(node), offset)
+
+    def _offset(self, local_pose: Pose2D) -> tuple[int, Pose2D]:
+        """The node a scan at the EKF's pose ``local_pose`` hangs from, and its pose from
+        that node: the last node's, or the node a revisit placed the robot on."""
+        anchor = self._anchor
+        if anchor is None:
+            node = len(self.local_poses) - 1
+            return node, relative(self.local_poses[node], local_pose)
+        return anchor.node, compose(anchor.seen, relative(anchor.local, local_pose))
+
+    def revisit(self, local_pose: Pose2D, points: np.ndarray) -> bool:
+        """Where the robot, at the EKF's pose ``local_pose`` with the scan ``points`` (robot
+        frame), is back on a node the graph holds (one ``min_travel_m`` or more back along
+        the path, within ``node_distance_m`` and ``node_angle_deg`` of its estimate): the
+        scan matched on that node's submap, and, where the match agrees with the graph
+        (``consistent_chi2``) and a loop closure already ties the submap to the rest of the
+        graph (the place was mapped, then seen again and closed), the robot placed there
+        (True) instead of a new node. Each such placement is the map localizing the robot;
+        a place revisited for hours keeps the nodes of its first visits. The first one
+        after a node of the chain ties that node to the old one (a closure), so the chain's
+        end is not left loose."""
+        cfg = self.cfg
+        old = (bisect.bisect_right(self.path, self.path[-1] - cfg.min_travel_m)
+               if self.path else 0)
+        if old == 0:
+            return False
+        node, offset = self._offset(local_pose)
+        at = compose(self.pose(node), offset)
+        poses = self.graph.poses[:old]
+        d = np.hypot(poses[:, 0] - at.x, poses[:, 1] - at.y)
+        near = np.flatnonzero((d <= cfg.node_distance_m) & (
+            np.abs(wrap_angles(poses[:, 2] - at.theta)) <= math.radians(cfg.node_angle_deg)))
+        if not len(near):
+            return False
+        j = int(near[np.argmin(d[near])])
+        if not any(self._tied[max(0, j - cfg.submap_nodes):j + cfg.submap_nodes + 1]):
+            return False
+        guess = relative(self.pose(j), at)
+        found = self._match(lambda: self._field(j, old), points, guess, cfg.search_radius_m,
+                            cfg.search_angle_deg)
+        if found is None:
+            return False
+        seen, info, _ = found
+        e = relative(guess, seen)
+        e_vec = np.array([e.x, e.y, e.theta])
+        chi2 = float(e_vec @ info @ e_vec)
+        if chi2 > cfg.consistent_chi2:
+            return False
+        if self._anchor is None:  # (the chain's last node, seen from node j)
+            k = len(self.local_poses) - 1
+            self.add_closures([Closure(j, k, compose(seen, relative(
+                local_pose, self.local_poses[k])), info, chi2)])
+        self._anchor = Anchor(j, seen, local_pose)
+        self._anchors.append(self._anchor)
+        self._chain = (Pose2D(), np.zeros((3, 3)), 0)
+        self.revisits += 1
+        return True
 
     def scan_correction(self, scan: int) -> Pose2D:
         """The graph's correction of the EKF frame at the node of scan number ``scan`` (the
-        last scan placed, if it is later)."""
-        return self.correction(self._scan_nodes[min(scan, len(self._scan_nodes) - 1)])
+        last scan placed, if it is later; where a revisit placed it, that one's)."""
+        scan = min(scan, len(self._scan_nodes) - 1)
+        if self._scan_anchors and self._scan_anchors[scan] >= 0:
+            return self._anchor_correction(self._anchors[self._scan_anchors[scan]])
+        return self.correction(self._scan_nodes[scan])
 
     def estimates(self, scans: np.ndarray | None = None) -> np.ndarray:
         """The current pose estimates (N×3, map frame) of the scans placed, by number
