@@ -55,7 +55,12 @@ from dynslam_cli.localization.loopmatch import (
     correlative_match,
     likelihood_field,
 )
-from dynslam_cli.localization.scanmatch import icp, scan_points
+from dynslam_cli.localization.scanmatch import (
+    icp,
+    pose_difference,
+    scan_points,
+    sigma_covariance,
+)
 from dynslam_cli.sections import LoopConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
@@ -129,6 +134,7 @@ class BackEnd:
         self._anchors: list[Anchor] = []  # ... and where it was (revisit)
         self._scan_anchors = array("i")  # per scan placed: its anchor (-1: none; revisit)
         self._tied = array("b")  # per node: an end of a loop closure (revisit)
+        self._anchor_cov = np.zeros((3, 3))  # the robot's pose where placed (map frame)
         self.revisits = 0
 
     def wants_node(self, local_pose: Pose2D) -> bool:
@@ -496,20 +502,49 @@ class BackEnd:
         if found is None:
             return False
         seen, info, _ = found
-        e = relative(guess, seen)
-        e_vec = np.array([e.x, e.y, e.theta])
-        chi2 = float(e_vec @ info @ e_vec)
-        if chi2 > cfg.consistent_chi2:
-            return False
-        if self._anchor is None:  # (the chain's last node, seen from node j)
-            k = len(self.local_poses) - 1
+        if self._anchor is None:
+            e = relative(guess, seen)
+            e_vec = np.array([e.x, e.y, e.theta])
+            chi2 = float(e_vec @ info @ e_vec)
+            if chi2 > cfg.consistent_chi2:
+                return False
+            k = len(self.local_poses) - 1  # (the chain's last node, seen from node j)
             self.add_closures([Closure(j, k, compose(seen, relative(
                 local_pose, self.local_poses[k])), info, chi2)])
+            cov = np.linalg.inv(info)
+        else:
+            fused = self._followed(self._anchor, local_pose, j, guess, seen, info)
+            if fused is None:
+                return False
+            seen, cov = fused
+        self._anchor_cov = _turned(cov, self.pose(j).theta)
         self._anchor = Anchor(j, seen, local_pose)
         self._anchors.append(self._anchor)
         self._chain = (Pose2D(), np.zeros((3, 3)), 0)
         self.revisits += 1
         return True
+
+    def _followed(self, anchor: Anchor, local_pose: Pose2D, j: int, guess: Pose2D,
+                  seen: Pose2D, info: np.ndarray) -> tuple[Pose2D, np.ndarray] | None:
+        """A revisit's match ``seen`` (node j's frame, information ``info``) fused with
+        where the last revisit and the motion since put the robot (``guess``, its
+        covariance the last revisit's compounded with the motion's noise model), and the
+        fused pose's covariance (node j's frame); None where the two disagree beyond
+        ``consistent_chi2``. So a match that could slide along a wall stays where the
+        motion says along it."""
+        motion = relative(anchor.local, local_pose)
+        st, sr = motion_std(motion.x, motion.y, motion.theta, self.motion_noise)
+        predicted = _turned(compound_covariance(
+            compose(self.pose(anchor.node), anchor.seen), self._anchor_cov, motion,
+            sigma_covariance((st, st, sr))), -self.pose(j).theta)
+        innovation = pose_difference(seen, guess)
+        spread = predicted + np.linalg.inv(info)
+        if float(innovation @ np.linalg.solve(spread, innovation)) > self.cfg.consistent_chi2:
+            return None
+        gain = predicted @ np.linalg.inv(spread)
+        step = gain @ innovation
+        return (Pose2D(guess.x + step[0], guess.y + step[1], guess.theta + step[2]),
+                (np.eye(3) - gain) @ predicted)
 
     def scan_correction(self, scan: int) -> Pose2D:
         """The graph's correction of the EKF frame at the node of scan number ``scan`` (the
@@ -532,3 +567,10 @@ class BackEnd:
         return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
                                 base[:, 1] + s * off[:, 0] + c * off[:, 1],
                                 wrap_angles(base[:, 2] + off[:, 2])))
+
+
+def _turned(cov: np.ndarray, theta: float) -> np.ndarray:
+    """A pose covariance (x, y, θ) in a frame turned by ``theta``: R Σ Rᵀ."""
+    c, s = math.cos(theta), math.sin(theta)
+    r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return r @ cov @ r.T
