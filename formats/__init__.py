@@ -138,9 +138,11 @@ def describe_log(path: str, options: ReaderOptions, format_name: str | None = No
                  ) -> dict[str, object]:
     """What a log holds, read through its reader (so it works for every format, plugins
     included): records or topics with counts, scans, beams, field of view, max range,
-    duration, whether it carries odometry. A bag with several LaserScan (or Odometry)
-    topics and no option choosing one is described topic by topic, under ``topics``, with
-    the option ``process`` needs: the same rule as processing, never a silent pick."""
+    duration, whether it carries odometry, and the laser's mount on the robot (x, y
+    metres, heading degrees; each one the log states, up to MAX_MOUNTS). A bag with
+    several LaserScan (or Odometry) topics and no option choosing one is described topic
+    by topic, under ``topics``, with the option ``process`` needs: the same rule as
+    processing, never a silent pick."""
     try:
         return _describe(path, options, format_name)
     except SeveralTopicsError as e:
@@ -153,12 +155,15 @@ def describe_log(path: str, options: ReaderOptions, format_name: str | None = No
                            for t, d in each.items()}}
 
 
+MAX_MOUNTS = 4  # dynslam info lists this many of a log's laser mounts
+
+
 def _describe(path: str, options: ReaderOptions, format_name: str | None
               ) -> dict[str, object]:
     import math
 
     source, entry, reader = open_log(path, options, format_name)
-    n, beams, fovs, max_ranges, odometry = 0, set(), set(), set(), False
+    n, beams, fovs, max_ranges, odometry, mounts = 0, set(), set(), set(), False, set()
     first = last = math.nan
     try:
         for scan in reader.scans():
@@ -171,6 +176,10 @@ def _describe(path: str, options: ReaderOptions, format_name: str | None
                 fovs.add(round(math.degrees(abs(scan.angles[-1] - scan.angles[0])), 2))
             max_ranges.add(round(scan.max_range, 3))
             odometry = odometry or scan.has_odometry
+            if len(mounts) <= MAX_MOUNTS:
+                laser = scan.laser
+                mounts.add((round(laser.x, 4) + 0.0, round(laser.y, 4) + 0.0,  # (no -0.0)
+                            round(math.degrees(laser.theta), 2) + 0.0))
     finally:
         source.close()
     topics = getattr(reader, "topics", None)
@@ -179,4 +188,6 @@ def _describe(path: str, options: ReaderOptions, format_name: str | None
             "records": reader.stats.to_dict()["records"], "scans": n,
             "beams": sorted(beams), "fov_deg": sorted(fovs), "max_range_m": sorted(max_ranges),
             "duration_s": round(last - first, 3) if n else 0.0, "odometry": odometry,
+            "laser_mount": ([list(m) for m in sorted(mounts)] if len(mounts) <= MAX_MOUNTS
+                            else f"more than {MAX_MOUNTS} (a moving mount)"),
             "skipped": dict(reader.stats.skipped), "warnings": dict(reader.stats.warnings)}

@@ -61,6 +61,7 @@ def test_info_describes_each_format(simulated, cli, fmt):
     d = json.loads(r.stdout)
     assert d["scans"] == 401 and d["beams"] == [181] and d["odometry"] is True
     assert d["fov_deg"] == [180.0] and d["duration_s"] == pytest.approx(40.0)
+    assert d["laser_mount"] == [[0.0, 0.0, 0.0]]
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -400,6 +401,7 @@ def test_a_mount_stated_wrong_is_read_as_the_user_gives_it(simulated, cli, tmp_p
     (mount,) = mounts
     assert (mount.x, mount.theta) == (0.0, pytest.approx(math.pi / 2))
     assert abs(mount.y) < 1e-5  # the log's own y (0, as the six decimals write it)
+    assert json.loads(cli("info", wrong, "--json").stdout)["laser_mount"] == [[0.3, 0.0, 0.0]]
 
     fixed = tmp_path / "mount.toml"
     fixed.write_text("[laser]\nmount_x_m = 0.0\nmount_y_m = 0.0\nmount_deg = 0.0\n")
