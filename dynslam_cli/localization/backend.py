@@ -256,11 +256,11 @@ class BackEnd:
 
     def _try_prior(self, k: int) -> bool:
         """Node k's scans matched against the prior map (``prior``) near where the
-        graph has it, every ``attempt_every_m``: a closure to the first node (held where
+        graph has it, every ``prior_every_m``: a closure to the first node (held where
         the prior placed it), so the run stays in the prior's frame; accepted as any other."""
         cfg, prior, field = self.cfg, self._prior, self._prior_field
         if (prior is None or field is None
-                or self.path[k] - self._last_prior_m < cfg.attempt_every_m):
+                or self.path[k] - self._last_prior_m < cfg.prior_every_m):
             return False
         self._last_prior_m = self.path[k]
         found = self._match(lambda: field, self._query(k), self.pose(k), cfg.search_radius_m,
