@@ -48,6 +48,14 @@ def compound_covariance(a: Pose2D, cov_a: np.ndarray, b: Pose2D, cov_b: np.ndarr
     return ja @ cov_a @ ja.T + jb @ cov_b @ jb.T
 
 
+def rotated_covariance(cov: np.ndarray, theta: float) -> np.ndarray:
+    """A pose covariance (x, y, θ) seen in a frame turned by −``theta`` from its own (its
+    x, y turned by ``theta``): R Σ Rᵀ."""
+    c, s = math.cos(theta), math.sin(theta)
+    r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return r @ cov @ r.T
+
+
 def moved_far(a: Pose2D, b: Pose2D, distance_m: float, angle_rad: float) -> bool:
     """Whether pose b lies at least ``distance_m`` from pose a or is turned at least
     ``angle_rad`` from it: the rule by which a new key scan, graph node or path pose is

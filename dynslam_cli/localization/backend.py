@@ -41,6 +41,7 @@ from dynslam_cli.geometry import (
     inverse,
     moved_far,
     relative,
+    rotated_covariance,
     transform_points,
     wrap_angles,
 )
@@ -517,7 +518,7 @@ class BackEnd:
             if fused is None:
                 return False
             seen, cov = fused
-        self._anchor_cov = _turned(cov, self.pose(j).theta)
+        self._anchor_cov = rotated_covariance(cov, self.pose(j).theta)
         self._anchor = Anchor(j, seen, local_pose)
         self._anchors.append(self._anchor)
         self._chain = (Pose2D(), np.zeros((3, 3)), 0)
@@ -534,7 +535,7 @@ class BackEnd:
         motion says along it."""
         motion = relative(anchor.local, local_pose)
         st, sr = motion_std(motion.x, motion.y, motion.theta, self.motion_noise)
-        predicted = _turned(compound_covariance(
+        predicted = rotated_covariance(compound_covariance(
             compose(self.pose(anchor.node), anchor.seen), self._anchor_cov, motion,
             sigma_covariance((st, st, sr))), -self.pose(j).theta)
         innovation = pose_difference(seen, guess)
@@ -567,10 +568,3 @@ class BackEnd:
         return np.column_stack((base[:, 0] + c * off[:, 0] - s * off[:, 1],
                                 base[:, 1] + s * off[:, 0] + c * off[:, 1],
                                 wrap_angles(base[:, 2] + off[:, 2])))
-
-
-def _turned(cov: np.ndarray, theta: float) -> np.ndarray:
-    """A pose covariance (x, y, θ) in a frame turned by ``theta``: R Σ Rᵀ."""
-    c, s = math.cos(theta), math.sin(theta)
-    r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return r @ cov @ r.T

@@ -28,6 +28,7 @@ from dynslam_cli.geometry import (
     compound_covariance,
     moved_far,
     relative,
+    rotated_covariance,
     transform_points,
 )
 from dynslam_cli.localization import _match
@@ -180,9 +181,7 @@ def fused_pose(match: Pose2D, information: np.ndarray, odometry: Pose2D,
 def increment_covariance(cov: np.ndarray, previous: Pose2D) -> np.ndarray:
     """A pose covariance (matcher frame) as the covariance of the increment from
     ``previous``, in the previous robot frame (its rotation undone)."""
-    c, s = math.cos(previous.theta), math.sin(previous.theta)
-    j = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    return j @ cov @ j.T
+    return rotated_covariance(cov, -previous.theta)
 
 
 # A key scan's range view: the nearest end point in each bearing bin of this width ...
