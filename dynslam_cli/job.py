@@ -68,6 +68,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
     and measure the scans in a second process (on Linux; see dynslam_cli.readahead);
     ``prior``: start from an earlier session's map (see :func:`open_prior`)."""
     from dynslam_formats import open_log
+    from dynslam_formats.guard import timed_by_order
     from dynslam_formats.outdir import (
         OUTPUT_FILES,
         atomic_output_dir,
@@ -132,7 +133,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
         if spacing is not None and spacing.convincing:
             front.stats.warn(spacing.notice())
         stamps = result.trajectory[:, 0]
-        timeless = clock_stopped(stamps)
+        timeless = clock_stopped(stamps)  # (a clock that stopped after the first scans)
         if timeless:
             front.stats.warn("time stamps carry no time (most scans repeat one): "
                              "trajectory.tum numbers the scans 0, 1, 2, … s, and no "
@@ -147,8 +148,9 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "reader": front.stats.to_dict(),
             "scans_processed": len(stamps),
             "first_stamp": float(stamps[0]) if len(stamps) else None,
-            "data_duration_s": (None if timeless else float(stamps.max() - stamps.min())
-                                if len(stamps) else 0.0),
+            "data_duration_s": (None if timeless or timed_by_order(front.stats)
+                                else float(stamps.max() - stamps.min()) if len(stamps)
+                                else 0.0),
             "map": {"rows": result.static.shape[0], "cols": result.static.shape[1],
                     "resolution_m": result.static.resolution,
                     "origin": [result.static.origin_x, result.static.origin_y],

@@ -133,13 +133,22 @@ class LaserConfig:
     own. A laser's scans reach the logger after the sweep and the transfer (a SICK LMS at
     38.4 kbaud: 94 ms), while the logger reads the odometry at arrival."""
 
+    stopped_clock_period_s: float = 1.0
+    """Where a log's stamps carry no time (most of its first 50 scans repeat one: the
+    corrected Radish freiburg-campus, orebro, belgioioso stamp every scan 0), its scans are
+    timed by their order, this many seconds apart (as trajectory.tum numbers them), so the
+    change events, whose rules are in seconds and metres per second, have a time to go
+    by. Say the laser's rate where it is known (a scan every 0.1-0.2 s for the raw
+    benchmark logs; the corrected Radish logs keep one every 1.5-5 s)."""
+
     def reader_options(self) -> dict[str, float | None]:
         """The reader options this section sets (dynslam_formats.ReaderOptions fields): the
         readers apply them, so every part of the program sees the same scans."""
         return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg,
                 "scan_latency_s": self.scan_latency_s, "max_range_m": self.max_range_m,
                 "mount_x_m": self.mount_x_m, "mount_y_m": self.mount_y_m,
-                "mount_deg": self.mount_deg}
+                "mount_deg": self.mount_deg,
+                "stopped_clock_period_s": self.stopped_clock_period_s}
 
     def check(self) -> None:
         require([
@@ -151,6 +160,8 @@ class LaserConfig:
             (self.beam_step_deg is None or 0 < self.beam_step_deg <= 360,
              "laser.beam_step_deg must be in (0, 360]"),
             (0 <= self.scan_latency_s <= 1, "laser.scan_latency_s must be in [0, 1] s"),
+            (0 < self.stopped_clock_period_s <= 3600,
+             "laser.stopped_clock_period_s must be in (0, 3600] s"),
             *((v is None or abs(v) <= MAX_MOUNT_M, f"laser.{name} must be within "
                f"{MAX_MOUNT_M:g} m of the robot") for name, v in (("mount_x_m", self.mount_x_m),
                                                                  ("mount_y_m", self.mount_y_m))),

@@ -33,6 +33,9 @@ class ReaderOptions:
     max_range_m: float | None = None
     """The laser's max range instead of the log's (metres): readings at or beyond it are
     'no return'."""
+    stopped_clock_period_s: float = 1.0
+    """Where the log's stamps carry no time, its scans are timed by their order this many
+    seconds apart."""
     mount_x_m: float | None = None
     """The laser's mount on the robot instead of the log's: its x (metres, forward) ..."""
     mount_y_m: float | None = None

@@ -5,6 +5,7 @@ the log asked for (``--start``, ``--end``, ``--max-scans``)."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Iterator
 
@@ -13,7 +14,8 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import interpolate, wrap_angle
 from dynslam_cli.types import Pose2D, Scan
-from dynslam_formats.base import LogReader, ReaderOptions
+from dynslam_formats.base import LogReader, ReaderOptions, ReadStats
+from dynslam_formats.tum import clock_stopped
 
 MAX_BEAMS = 20_000  # per scan; the finest 2D lidars give a few thousand
 MAX_COORDINATE_M = 1e7  # an odometry or mounting pose farther out than this is garbage
@@ -285,6 +287,49 @@ class ScanLatency(ReaderFilter):
             before = scan
 
 
+CLOCK_PROBE_SCANS = 50  # a log's clock is judged on its first this many scans
+STOPPED_CLOCK = ("time stamps carry no time (most scans repeat one): the scans are timed by "
+                 "their order, {:g} s apart ([laser] stopped_clock_period_s)")
+
+
+class ScanOrderClock(ReaderFilter):
+    """A reader's scans timed by their order, ``period_s`` apart from 0, where the log's
+    stamps carry no time (:func:`clock_stopped` over its first CLOCK_PROBE_SCANS scans:
+    the corrected Radish freiburg-campus stamps every scan 0, infinite-corridor's clock
+    sticks at 2³² after four scans), so what is ruled in seconds (change events,
+    snapshots, a window of the log) has a time to go by; said once (STOPPED_CLOCK). A log
+    whose clock runs passes as it is."""
+
+    def __init__(self, reader: LogReader, period_s: float) -> None:
+        super().__init__(reader)
+        self.period_s = period_s
+
+    def scans(self) -> Iterator[Scan]:
+        scans = iter(self.reader.scans())
+        probe: list[Scan] = []
+        error: Exception | None = None
+        try:
+            for scan in scans:
+                probe.append(scan)
+                if len(probe) == CLOCK_PROBE_SCANS:
+                    break
+        except Exception as e:  # (raised after the scans before it, as without the probe)
+            error = e
+        stopped = clock_stopped(np.array([scan.stamp for scan in probe]))
+        if stopped:
+            self.stats.warn(STOPPED_CLOCK.format(self.period_s))
+        for i, scan in enumerate(itertools.chain(probe, () if error else scans)):
+            yield dataclasses.replace(scan, stamp=i * self.period_s) if stopped else scan
+        if error is not None:
+            raise error
+
+
+def timed_by_order(stats: ReadStats) -> bool:
+    """Whether a reader's scans were timed by their order (:class:`ScanOrderClock`)."""
+    head = STOPPED_CLOCK.split("{")[0]
+    return any(w.startswith(head) for w in stats.warnings)
+
+
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
     """``reader`` behind the :class:`ScanGuard` (its beams first spread as ``beam_step_deg``
     says and its laser mounted as ``mount_*`` say, where set; then held to ``max_range_m``,
@@ -294,7 +339,7 @@ def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
         reader = BeamStep(reader, options.beam_step_deg)
     if any(v is not None for v in (options.mount_x_m, options.mount_y_m, options.mount_deg)):
         reader = LaserMount(reader, options)
-    reader = ScanGuard(reader, name)
+    reader = ScanOrderClock(ScanGuard(reader, name), options.stopped_clock_period_s)
     if options.max_range_m is not None:
         reader = RangeLimit(reader, options.max_range_m)
     if options.scan_latency_s > 0:

@@ -449,6 +449,32 @@ def test_a_log_without_time_gets_numbered_stamps_and_no_rate(cli, tmp_path):
     assert row["x_real_time"] == "" and row["data_duration_s"] == ""
 
 
+def test_a_log_without_time_is_timed_by_its_scans_and_keeps_its_change_events(cli, tmp_path):
+    """The corrected Radish freiburg-campus stamps every scan 0: its change events (whose
+    rules are in seconds) all fell at one instant and it got none, silently (issue 39).
+    Timed by the scan order at the rate the user states, the hall sample without its stamps
+    gives the events of the hall with them; said once."""
+    zero = tmp_path / "zero.log"
+    with open(SAMPLES / "hall" / "hall.log") as f, open(zero, "w") as out:
+        for line in f:
+            fields = line.split()
+            if fields and fields[0] in ("FLASER", "ODOM"):
+                fields[-3] = fields[-1] = "0.000000"
+            out.write(" ".join(fields) + "\n")
+    (tmp_path / "rate.toml").write_text("[laser]\nstopped_clock_period_s = 0.2\n")
+    r = cli("process", zero, "-o", tmp_path / "zero", "--config", tmp_path / "rate.toml")
+    assert r.exit_code == 0, r.stderr
+    assert r.stderr.count("timed by their order, 0.2 s apart") == 1
+    r = cli("process", SAMPLES / "hall" / "hall.log", "-o", tmp_path / "timed", "-q")
+    assert r.exit_code == 0, r.stderr
+    timed = (tmp_path / "timed/changes.csv").read_text()
+    assert len(timed.splitlines()) > 3  # (the hall's walkers)
+    assert (tmp_path / "zero/changes.csv").read_text() == timed
+    summary = json.loads((tmp_path / "zero/summary.json").read_text())
+    assert summary["data_duration_s"] is None  # (no time the log gave)
+    assert any("timed by their order" in w for w in summary["reader"]["warnings"])
+
+
 def test_record_takes_a_path_written_atomically(cli, tmp_path, monkeypatch):
     """--record ~/runs/today.mcap: a recording where the user says, made like the outputs
     (all or nothing, an existing one replaced only with --force and only if dynslam wrote
