@@ -202,6 +202,27 @@ def test_match_in_a_corridor_is_ambiguous_along_it_and_stays_at_the_guess():
     assert m.pose.y == pytest.approx(0.0, abs=0.06)
 
 
+def test_a_corridor_closure_ties_across_the_corridor_and_never_along_it():
+    """[loop] corridor_closures: a corridor's match (equally good offsets out to the
+    window's edge along it) enters with no information along the corridor, firm across it
+    and in heading; off, it is not matched at all."""
+    corridor = np.array([[-20, -1, 20, -1], [-20, 1, 20, 1]], float)
+    r, _ = ray_cast(Pose2D(), ANGLES, corridor, np.zeros(2, int), np.zeros((0, 3)),
+                    np.zeros(0, int), 20.0)
+    scan = Scan(0.0, r, ANGLES, 20.0, Pose2D())
+    field = likelihood_field(scan_points(scan, 20.0))
+    near = scan_points(scan, 6.0)
+    guess = Pose2D(0.6, 0.1, 0.02)
+    off = BackEnd(LoopConfig(), NoiseModel())
+    assert off._match(lambda: field, near, guess, 2.0, 10.0) is None
+    on = BackEnd(LoopConfig(corridor_closures=True), NoiseModel())
+    pose, info, _ = on._match(lambda: field, near, guess, 2.0, 10.0)
+    assert pose.y == pytest.approx(0.0, abs=0.03) and pose.theta == pytest.approx(0, abs=0.01)
+    along, across = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    assert along @ info @ along < 1.0 / 10.0 ** 2  # (along the match's own axis: none)
+    assert across @ info @ across > 1.0 / 0.2 ** 2 and info[2, 2] > 1.0 / math.radians(5) ** 2
+
+
 @pytest.mark.parametrize("submap_nodes", [4, 8])
 def test_loop_closer_closes_a_revisit(submap_nodes):
     """Drive out and back while the estimate's heading drifts 0.4° a step: the return is tied

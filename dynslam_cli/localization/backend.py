@@ -72,6 +72,15 @@ ONLINE_ITERATIONS = 1  # Gauss-Newton steps per optimization while the log runs
 FINAL_ITERATIONS = 10
 
 
+def without_direction(info: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """An edge's information (x, y, θ) with none along the translation ``axis`` (a unit
+    2-vector): an error along it costs nothing, as a match along a corridor says nothing
+    of where along it the robot is."""
+    u = np.array([axis[0], axis[1], 0.0])
+    keep = np.eye(3) - np.outer(u, u)
+    return keep @ info @ keep
+
+
 class PriorWalls(NamedTuple):
     """An earlier session's map, to keep a run in its frame (``--prior``): the centres of
     its Occupied cells (N×2) and the map blurred, to make a match finer than a cell on."""
@@ -287,18 +296,28 @@ class BackEnd:
         ICP, the information of the match and the points matched; None where it is poor,
         ambiguous or a corridor's."""
         cfg = self.cfg
-        if constraint_ratio(query) < cfg.min_constraint_ratio:
+        corridor = constraint_ratio(query) < cfg.min_constraint_ratio
+        if corridor and not cfg.corridor_closures:
             return None  # a corridor: it could be anywhere along it
         field = field_of()
         match = correlative_match(field, query, guess, radius, window_deg)
-        if (match.score < cfg.min_score
-                or np.linalg.eigvalsh(match.cov[:2, :2]).max() > cfg.max_ambiguity_m ** 2):
+        if match.score < cfg.min_score:
+            return None
+        spread, axes = np.linalg.eigh(match.cov[:2, :2])
+        ambiguous = spread[1] > cfg.max_ambiguity_m ** 2
+        if corridor:
+            ambiguous |= match.censored
+            if spread[0] > cfg.max_ambiguity_m ** 2:
+                return None  # it could be anywhere: not a corridor
+        elif ambiguous:
             return None
         refined = icp(field.index, query, match.pose, cfg.icp,
                       np.sqrt(np.diag(match.cov)))
         if refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m:
             return None
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
+        if ambiguous:
+            info = without_direction(info, axes[:, 1])
         return refined.pose, info, query
 
     def _close(self, closure: Closure, k: int) -> bool:

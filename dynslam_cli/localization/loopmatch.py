@@ -85,12 +85,15 @@ def constraint_ratio(points: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class Match:
-    """A correlative match: the pose, its score (mean likelihood of the points, 0–1) and the
-    covariance of the poses that score almost as well (its ambiguity)."""
+    """A correlative match: the pose, its score (mean likelihood of the points, 0–1), the
+    covariance of the poses that score almost as well (its ambiguity) and whether those
+    poses reach the window's edge in translation (the ambiguity is then wider than the
+    covariance says: a corridor longer than the window)."""
 
     pose: Pose2D
     score: float
     cov: np.ndarray
+    censored: bool = False
 
 
 def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
@@ -128,7 +131,7 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
                     guess.x + tx[j] * FIELD_RES_M, guess.y + ty[i] * FIELD_RES_M,
                     guess.theta + th))
     _, score, pose = best
-    return Match(pose, score, _ambiguity(bounds, t_m, dthetas, score))
+    return Match(pose, score, *_ambiguity(bounds, t_m, dthetas, score))
 
 
 DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge
@@ -150,10 +153,14 @@ CELL_COV = np.diag([COARSE_CELLS * FIELD_RES_M, COARSE_CELLS * FIELD_RES_M,
 
 
 def _ambiguity(bounds: np.ndarray, t_m: np.ndarray, dthetas: np.ndarray,
-               score: float) -> np.ndarray:
+               score: float) -> tuple[np.ndarray, bool]:
     """Covariance (x, y, θ) of the coarse cells that could hold a pose about as good as the
-    best: wide along a corridor, small where the scene pins the match down."""
+    best: wide along a corridor, small where the scene pins the match down; and whether
+    any of them lies on the window's edge in translation."""
     a, r, c = np.nonzero(bounds >= AMBIGUITY_SHARE * score)
+    edge = len(t_m) - 1
+    censored = bool(np.any((r == 0) | (r == edge) | (c == 0) | (c == edge)))
     if len(a) < 2:
-        return CELL_COV.copy()
-    return np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV
+        return CELL_COV.copy(), censored
+    return (np.cov(np.column_stack((t_m[c], t_m[r], dthetas[a])), rowvar=False) + CELL_COV,
+            censored)
