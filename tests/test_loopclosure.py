@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from dynslam_cli.geometry import compose, relative
+from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization.backend import BackEnd, Closure, LoopConfig
 from dynslam_cli.localization.cornerslam import EkfConfig
 from dynslam_cli.localization.ekf import NoiseModel
 from dynslam_cli.localization.graph import PoseGraph, edge_errors
-from dynslam_cli.localization.loopmatch import correlative_match, likelihood_field
+from dynslam_cli.localization.loopmatch import View, correlative_match, likelihood_field
 from dynslam_cli.localization.scanmatch import MatchConfig, ScanMatcher, scan_points
 from dynslam_cli.sections import IcpConfig
 from dynslam_cli.simulate import ray_cast
@@ -221,6 +221,29 @@ def test_a_corridor_closure_ties_across_the_corridor_and_never_along_it():
     along, across = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
     assert along @ info @ along < 1.0 / 10.0 ** 2  # (along the match's own axis: none)
     assert across @ info @ across > 1.0 / 0.2 ** 2 and info[2, 2] > 1.0 / math.radians(5) ** 2
+
+
+def test_a_wall_the_old_submap_never_saw_does_not_slide_the_match():
+    """A corridor's end wall, seen now by a robot facing it and never by the old scans
+    (they faced away): scored everywhere, the points beside it slide the match 1 m along
+    the corridor to overlap the old submap; scored only where the old scans looked
+    ([loop] seen_only), the match stays within a coarse step of the truth."""
+    walls = np.array([[-3, -1, 30, -1], [-3, 1, 30, 1], [-3, -1, -3, 1]], float)
+
+    def points_at(pose: Pose2D) -> np.ndarray:
+        r, _ = ray_cast(pose, ANGLES, walls, np.zeros(3, int), np.zeros((0, 3)),
+                        np.zeros(0, int), 8.0)
+        return scan_points(Scan(0.0, r, ANGLES, 8.0, pose), 8.0)
+
+    old = [Pose2D(x, 0.0, 0.0) for x in np.arange(0.0, 4.01, 0.5)]  # facing away
+    views = [View(np.array([p.x, p.y]), transform_points(p, points_at(p))) for p in old]
+    submap = np.vstack([v.points for v in views])
+    new = Pose2D(1.0, 0.05, math.pi)  # facing the end wall, 4 m ahead
+    slid = correlative_match(likelihood_field(submap), points_at(new), new, 2.0, 10.0)
+    held = correlative_match(likelihood_field(submap, views), points_at(new), new, 2.0, 10.0)
+    assert slid.pose.x - new.x > 0.8
+    assert abs(held.pose.x - new.x) <= 0.15 and abs(held.pose.y - new.y) < 0.05
+    assert held.censored  # (and along the corridor it could be anywhere)
 
 
 @pytest.mark.parametrize("submap_nodes", [4, 8])

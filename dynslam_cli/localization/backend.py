@@ -52,6 +52,7 @@ from dynslam_cli.localization.loopmatch import (
     ANGLE_STEP_DEG,
     FIELD_RES_M,
     LikelihoodField,
+    View,
     constraint_ratio,
     correlative_match,
     likelihood_field,
@@ -408,6 +409,16 @@ class BackEnd:
         return np.concatenate([transform_points(relative(ref, self.pose(n)), self.points[n])
                                for n in nodes])
 
+    def _views(self, centre: int, nodes: range) -> list[View]:
+        """Each node's scan as a view (its position and its points) in the frame of node
+        ``centre``."""
+        ref = self.pose(centre)
+        views = []
+        for n in nodes:
+            at = relative(ref, self.pose(n))
+            views.append(View(np.array([at.x, at.y]), transform_points(at, self.points[n])))
+        return views
+
     def _field(self, i: int, end: int) -> LikelihoodField:
         """Node i's submap as a likelihood field (cached): the scans of ``submap_nodes``
         nodes each side of it, none from node ``end`` on (the stretch just driven, whose
@@ -417,8 +428,9 @@ class BackEnd:
         if cached is not None:
             self._fields.move_to_end(key)
             return cached
-        pts = self._submap(i, range(max(0, i - self.cfg.submap_nodes), key[1]))
-        field = likelihood_field(pts)
+        nodes = range(max(0, i - self.cfg.submap_nodes), key[1])
+        field = likelihood_field(self._submap(i, nodes),
+                                 self._views(i, nodes) if self.cfg.seen_only else None)
         self._fields[key] = field
         if len(self._fields) > 8:
             self._fields.popitem(last=False)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,15 +45,29 @@ FIELD_MARGIN_M = (COARSE_KERNEL.shape[0] // 2 + 1) * FIELD_RES_M
 class LikelihoodField:
     """exp(−d²/2σ²) of the distance d from each cell to the nearest occupied cell of the
     submap, on a fine grid, and its max-pooled copy for the coarse pass; the submap's points
-    indexed, with their normals for ICP."""
+    indexed, with their normals for ICP; and, where the submap's views are known, which
+    cells its scans looked at (1, else 0) and its min-pooled copy for the coarse pass."""
 
     fine: np.ndarray
     coarse: np.ndarray
     origin: np.ndarray  # map coordinates of cell (0, 0)
     index: PointIndex
+    seen: np.ndarray | None = None
+    seen_coarse: np.ndarray | None = None
 
 
-def likelihood_field(points: np.ndarray) -> LikelihoodField:
+class View(NamedTuple):
+    """One scan of a submap: the laser's position and its end points in beam order (N×2),
+    in the submap's frame."""
+
+    origin: np.ndarray
+    points: np.ndarray
+
+
+def likelihood_field(points: np.ndarray, views: list[View] | None = None
+                     ) -> LikelihoodField:
+    """The field of the submap ``points``; with ``views``, also where they looked
+    (:func:`seen_cells`)."""
     lo = points.min(axis=0) - FIELD_MARGIN_M
     hi = points.max(axis=0) + FIELD_MARGIN_M
     shape = np.ceil((hi - lo) / FIELD_RES_M).astype(int) + 1
@@ -62,7 +77,32 @@ def likelihood_field(points: np.ndarray) -> LikelihoodField:
     _loops.splat_max(fine, rows, cols, FINE_KERNEL)
     _loops.splat_max(coarse, rows, cols, COARSE_KERNEL)
     index = PointIndex(points, neighbours=NORMAL_NEIGHBOURS)
-    return LikelihoodField(fine, coarse, lo, index)
+    if views is None:
+        return LikelihoodField(fine, coarse, lo, index)
+    from scipy.ndimage import minimum_filter
+
+    seen = seen_cells(views, lo, fine.shape)
+    return LikelihoodField(fine, coarse, lo, index, seen,
+                           minimum_filter(seen, size=COARSE_CELLS + 1, mode="constant"))
+
+
+def seen_cells(views: list[View], origin: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """1.0 on the cells of a grid (cell (0, 0) centred on ``origin``) that a view looked at:
+    inside the fan from its laser through its end points, and within the field's reach
+    (FIELD_REACH_CELLS) of those cells, as far as a wall's likelihood spreads; else 0."""
+    from PIL import Image, ImageDraw
+    from scipy.ndimage import maximum_filter
+
+    image = Image.new("L", (shape[1], shape[0]), 0)
+    draw = ImageDraw.Draw(image)
+    for view in views:
+        if len(view.points) < 2:
+            continue
+        fan = np.vstack([view.origin[None, :], view.points])
+        xy = (fan - origin) / FIELD_RES_M + 0.5  # (a cell's centre: the pixel's)
+        draw.polygon([tuple(p) for p in xy.tolist()], fill=1, outline=1)
+    seen = np.asarray(image, dtype=np.float64)
+    return maximum_filter(seen, size=2 * FIELD_REACH_CELLS + 1, mode="constant")
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
@@ -99,6 +139,9 @@ class Match:
 def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
                       window_m: float, window_deg: float) -> Match:
     """Best pose of ``pts``' frame in the field's frame within the window around ``guess``.
+    Where the field knows where its submap looked, a pose is scored on the points that
+    land there (an end point where the old scans never looked is neither a hit nor a
+    miss), so the search does not slide the scan to overlap the submap.
 
     Scores are weighed by a mild preference for the guess's position, so along a
     featureless corridor (where every offset scores the same) the estimate stays put
@@ -110,6 +153,9 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
     base = np.array([guess.x, guess.y])
     bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base, coarse_t,
                      coarse_t)
+    if field.seen_coarse is not None:  # (the fewest seen below a coarse cell: a bound)
+        bounds /= _seen_share(_scores(field.seen_coarse, field.origin, pts,
+                                      guess.theta + dthetas, base, coarse_t, coarse_t))
     t_m = coarse_t * FIELD_RES_M
     ranked = bounds * _preference(t_m[None, None, :], t_m[None, :, None], window_m)
     fine_t = np.arange(-(COARSE_CELLS // 2), COARSE_CELLS // 2 + 1)
@@ -122,6 +168,9 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
         tx, ty = coarse_t[c] + fine_t, coarse_t[r] + fine_t
         ths = dthetas[a] + sub_angles
         fine = _scores(field.fine, field.origin, pts, guess.theta + ths, base, tx, ty)
+        if field.seen is not None:
+            fine /= _seen_share(_scores(field.seen, field.origin, pts, guess.theta + ths,
+                                        base, tx, ty))
         for th, sc in zip(ths, fine, strict=True):
             w = sc * _preference(tx[None, :] * FIELD_RES_M, ty[:, None] * FIELD_RES_M,
                                  window_m)
@@ -132,6 +181,16 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
                     guess.theta + th))
     _, score, pose = best
     return Match(pose, score, *_ambiguity(bounds, t_m, dthetas, score))
+
+
+MIN_SEEN_SHARE = 0.5  # a pose's score is over at least this share of the points
+
+
+def _seen_share(share: np.ndarray) -> np.ndarray:
+    """The share of a pose's points scored, where the field knows where its submap
+    looked: those on cells it saw, never less than MIN_SEEN_SHARE (a pose that puts most
+    points where the submap never looked scores as if they were misses)."""
+    return np.maximum(share, MIN_SEEN_SHARE)
 
 
 DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge
