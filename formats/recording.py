@@ -80,6 +80,7 @@ PATH_STEP_M, PATH_STEP_RAD = 0.1, math.radians(5.0)
 PATH_MAX_POSES = 1000  # in a running /path (the last one holds every scan)
 LANDMARK_DIAMETER_M = 0.2
 EVENT_MIN_DIAMETER_M = 0.3  # an event's disc is as wide as its size, and at least this
+PATH_WIDTH_M = 0.05  # a mover's path: a line this wide
 
 TF, SCAN, GRID, PATH, MARKERS = ("tf2_msgs/msg/TFMessage", "sensor_msgs/msg/LaserScan",
                                  "nav_msgs/msg/OccupancyGrid", "nav_msgs/msg/Path",
@@ -447,13 +448,20 @@ class Recording:
         self._send("/changes", stamp, self._event_markers(stamp, events))
 
     def _event_markers(self, stamp: float, events: list[ChangeEvent]) -> Any:
-        """A disc and a label per event, in changes.csv's colours of map.png."""
+        """A disc and a label per event, in changes.csv's colours of map.png; a mover with
+        a path is its path (a thin line, as map.png draws it), about its centre."""
         markers = []
+        point = self.t["geometry_msgs/msg/Point"]
         for e in events:
-            d = max(math.sqrt(e.size_m2), EVENT_MIN_DIAMETER_M)
             rgb = CHANGE_RGB[e.kind]
-            markers.append(self._marker(stamp, e.kind, e.id, "CYLINDER", (e.x, e.y),
-                                        (d, d, 0.02), rgb, alpha=0.5))
+            if len(e.path) >= 2:
+                path = [point(x=x - e.x, y=y - e.y, z=0.0) for x, y in e.path]
+                markers.append(self._marker(stamp, e.kind, e.id, "LINE_STRIP", (e.x, e.y),
+                                            (PATH_WIDTH_M, 0.0, 0.0), rgb, points=path))
+            else:
+                d = max(math.sqrt(e.size_m2), EVENT_MIN_DIAMETER_M)
+                markers.append(self._marker(stamp, e.kind, e.id, "CYLINDER", (e.x, e.y),
+                                            (d, d, 0.02), rgb, alpha=0.5))
             markers.append(self._marker(stamp, f"{e.kind} labels", e.id, "TEXT_VIEW_FACING",
                                         (e.x, e.y), (0.0, 0.0, 0.3), rgb,
                                         text=f"{e.id} {e.kind}"))

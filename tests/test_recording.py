@@ -154,6 +154,20 @@ def test_the_change_events_appear_when_they_were_first_seen(recorded):
             tuple(c / 255 for c in CHANGE_RGB[row["kind"]]))
 
 
+def test_a_mover_is_its_path_on_the_changes_topic(recorded):
+    """/changes draws a moving event as map.png does, a thin line along its path (it was a
+    disc at the path's centre)."""
+    events = {e["id"]: e for e in json.loads((recorded / "summary.json").read_text())
+              ["changes"]["events"]}
+    final = [m for topic, _, _, m in read_all(recorded / "run.mcap") if topic == "/changes"][-1]
+    lines = [m for m in final.markers if m.type == m.LINE_STRIP]
+    assert lines and all(events[m.id]["kind"] == "moving" for m in lines)
+    assert {m.id for m in lines} == {i for i, e in events.items() if len(e["path"]) >= 2}
+    for m in lines:
+        drawn = [(m.pose.position.x + p.x, m.pose.position.y + p.y) for p in m.points]
+        assert np.allclose(drawn, events[m.id]["path"], atol=1e-6)
+
+
 def test_mcap_reads_it_as_a_ros2_file(recorded):
     from mcap.reader import make_reader
 
