@@ -294,8 +294,11 @@ def test_default_output_name(cli, tmp_path, monkeypatch):
     contract_ok(tmp_path / "run_dynslam")
 
 
-@pytest.mark.parametrize(("name", "poses"), [("mit-csail.clf", 1988),
-                                            ("csail-robotlaser1.log", 686)])
+@pytest.mark.parametrize(("name", "poses"), [
+    ("mit-csail.clf", 1988), ("csail-robotlaser1.log", 686),
+    # (issue 39: one row per corner on freiburg-079 at the default resolution; it had 20
+    # pairs closer than 5 cm)
+    ("radish-corrected/freiburg-079-corrected.log.gz", 4791)])
 def test_real_logs_end_to_end(cli, datasets, tmp_path, name, poses):
     r = cli("process", datasets / "carmen" / name, "-o", tmp_path / "o", "-q")
     assert r.exit_code == 0, r.stderr
