@@ -477,6 +477,30 @@ def test_the_odometrys_systematic_errors_are_learned_from_the_matches():
     assert off.correct(wheel) == wheel  # calibrate_odometry = false: the odometry as it is
 
 
+def test_matches_along_a_featureless_corridor_teach_the_calibration_nothing():
+    """Where the scan saw nothing along the way (a corridor: the fused increment is as
+    uncertain as the odometry's prior along the travel), the calibration learns no scale
+    from it, however far it drives and wherever the match slid; where it saw all, it
+    learns the odometry's 5%. With calibrate_rotation = false the wheel's turn is left as
+    it is."""
+    from dynslam_cli.localization.correlative import OdometryCalibration, scan_share
+
+    wheel, sigma = Pose2D(0.0525, 0.0, 0.0), (0.01, 0.01)
+    corridor = np.diag([0.01 ** 2, 0.001 ** 2, 0.001 ** 2])  # (long along the travel)
+    room = np.diag([0.001 ** 2, 0.001 ** 2, 0.001 ** 2])
+    assert scan_share(corridor, wheel, sigma)[0] == pytest.approx(0.0)
+    assert scan_share(room, wheel, sigma)[0] == pytest.approx(0.99)
+    blind, seeing = (OdometryCalibration(enabled=True, rotation=False) for _ in range(2))
+    for _ in range(3000):
+        blind.learn(Pose2D(0.045, 0.0, 0.0), wheel,  # (a match that slid short)
+                    scan_share(corridor, wheel, sigma))
+        seeing.learn(Pose2D(0.05, 0.0, 0.0), wheel, scan_share(room, wheel, sigma))
+    assert blind.scale_t == pytest.approx(1.0) and seeing.scale_t == pytest.approx(
+        1 / 1.05, abs=0.002)
+    turn = Pose2D(0.05, 0.0, 0.1)
+    assert seeing.correct(turn).theta == turn.theta
+
+
 def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
     from dynslam_cli.localization.scanmatch import fused_pose
 

@@ -91,8 +91,9 @@ class OdometryCalibration:
     SCALE_LIMIT = (0.8, 1.25)
     DRIFT_LIMIT_DEG_PER_M = 5.0
 
-    def __init__(self, enabled: bool = False) -> None:
+    def __init__(self, enabled: bool = False, rotation: bool = True) -> None:
         self.enabled = enabled
+        self.rotation = rotation  # (False: the translation's scale alone)
         p = self.PRIOR_STEPS
         self._tt = np.array([p * self.STEP_M ** 2, p * self.STEP_M ** 2])  # Σ m·w, Σ w·w
         # rotation: normal equations over (s_r, b): Σ [w_θ, d]ᵀ[w_θ, d] and Σ [w_θ, d]ᵀ m_θ
@@ -105,29 +106,49 @@ class OdometryCalibration:
         """A wheel increment (previous robot frame) with the learned errors taken out."""
         if not self.enabled:
             return wheel
+        if not self.rotation:
+            return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t, wheel.theta)
         d = math.hypot(wheel.x, wheel.y)
         return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t,
                       wheel.theta * self.scale_r + self.drift * d)
 
-    def learn(self, measured: Pose2D, wheel: Pose2D) -> None:
+    def learn(self, measured: Pose2D, wheel: Pose2D, seen: tuple[float, float] = (1.0, 1.0)
+              ) -> None:
         """One matched increment and the raw wheel increment, both in the previous robot
-        frame."""
+        frame; ``seen``: how much of the match's translation along the wheel's and of its
+        rotation the scan saw (0-1, :func:`scan_share`), its weight in the sums (a match
+        along a featureless corridor is the odometry's own and teaches nothing of it)."""
         if not self.enabled:
             return
         keep = 1.0 - 1.0 / self.LEARN_SCANS
         tt0, rr0, rm0 = self._prior  # (forgetting the data, never the prior)
         d = math.hypot(wheel.x, wheel.y)
         a = np.array([wheel.theta, d])
-        self._tt = tt0 + keep * (self._tt - tt0) + np.array(
+        w_t, w_r = seen
+        self._tt = tt0 + keep * (self._tt - tt0) + w_t * np.array(
             [measured.x * wheel.x + measured.y * wheel.y, d * d])
-        self._rr = rr0 + keep * (self._rr - rr0) + np.outer(a, a)
-        self._rm = rm0 + keep * (self._rm - rm0) + a * math.remainder(measured.theta, math.tau)
+        self._rr = rr0 + keep * (self._rr - rr0) + w_r * np.outer(a, a)
+        self._rm = rm0 + keep * (self._rm - rm0) + w_r * a * math.remainder(measured.theta,
+                                                                            math.tau)
         lo, hi = self.SCALE_LIMIT
         self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
         s_r, b = np.linalg.solve(self._rr, self._rm)
         limit = math.radians(self.DRIFT_LIMIT_DEG_PER_M)
         self.scale_r = min(max(float(s_r), lo), hi)
         self.drift = min(max(float(b), -limit), limit)
+
+
+def scan_share(cov: np.ndarray, wheel: Pose2D, sigma: tuple[float, float]) -> tuple[float,
+                                                                                   float]:
+    """How much of a fused increment (covariance ``cov``, previous robot frame) the scan
+    determined, against the odometry's prior (standard deviations ``sigma``, translation
+    and rotation): 1 − posterior variance / prior variance along the wheel's direction of
+    travel, and in rotation (0 where the scan saw nothing that way, 1 where it saw all)."""
+    d = math.hypot(wheel.x, wheel.y)
+    u = np.array([wheel.x, wheel.y]) / d if d > 0 else np.array([1.0, 0.0])
+    along = float(u @ cov[:2, :2] @ u)
+    return (min(max(1.0 - along / max(sigma[0], 1e-9) ** 2, 0.0), 1.0),
+            min(max(1.0 - float(cov[2, 2]) / max(sigma[1], 1e-9) ** 2, 0.0), 1.0))
 
 
 class Posterior(NamedTuple):

@@ -39,6 +39,7 @@ from dynslam_cli.localization.correlative import (
     OdometryScale,
     log_field,
     sampled_walls,
+    scan_share,
     search,
     with_points,
 )
@@ -400,7 +401,8 @@ class ScanMatcher:
         self._wheel = WheelOdometry()
         self._last_increment = Pose2D()
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
-        self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry)
+        self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry,
+                                                cfg.correlative.calibrate_rotation)
         # the last scan whose match agreed with its wheel odometry: its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
         # fusion "filter": the covariance of self._pose about the local map (matcher frame)
@@ -437,7 +439,8 @@ class ScanMatcher:
             self._odometry.learn(inc, wheel, cfg.correlative.odometry)
             if measured is not None and self._calibration.enabled:  # (a match the odometry
                 # was fused into)
-                self._calibration.learn(relative(self._pose, measured), raw)
+                self._calibration.learn(relative(self._pose, measured), raw, scan_share(
+                    cov, wheel, self._odometry.std(wheel, cfg.correlative.odometry)))
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
