@@ -405,13 +405,11 @@ class BackEnd:
 
     def _submap(self, centre: int, nodes: range) -> np.ndarray:
         """Scan points of ``nodes`` in the frame of node ``centre`` (by the graph's poses)."""
-        ref = self.pose(centre)
-        return np.concatenate([transform_points(relative(ref, self.pose(n)), self.points[n])
-                               for n in nodes])
+        return np.concatenate([view.points for view in self._views(centre, nodes)])
 
     def _views(self, centre: int, nodes: range) -> list[View]:
         """Each node's scan as a view (its position and its points) in the frame of node
-        ``centre``."""
+        ``centre`` (by the graph's poses)."""
         ref = self.pose(centre)
         views = []
         for n in nodes:
@@ -428,9 +426,9 @@ class BackEnd:
         if cached is not None:
             self._fields.move_to_end(key)
             return cached
-        nodes = range(max(0, i - self.cfg.submap_nodes), key[1])
-        field = likelihood_field(self._submap(i, nodes),
-                                 self._views(i, nodes) if self.cfg.seen_only else None)
+        views = self._views(i, range(max(0, i - self.cfg.submap_nodes), key[1]))
+        field = likelihood_field(np.concatenate([view.points for view in views]),
+                                 views if self.cfg.seen_only else None)
         self._fields[key] = field
         if len(self._fields) > 8:
             self._fields.popitem(last=False)

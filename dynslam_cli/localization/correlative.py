@@ -106,11 +106,9 @@ class OdometryCalibration:
         """A wheel increment (previous robot frame) with the learned errors taken out."""
         if not self.enabled:
             return wheel
-        if not self.rotation:
-            return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t, wheel.theta)
-        d = math.hypot(wheel.x, wheel.y)
-        return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t,
-                      wheel.theta * self.scale_r + self.drift * d)
+        theta = (wheel.theta * self.scale_r + self.drift * math.hypot(wheel.x, wheel.y)
+                 if self.rotation else wheel.theta)
+        return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t, theta)
 
     def learn(self, measured: Pose2D, wheel: Pose2D, seen: tuple[float, float] = (1.0, 1.0)
               ) -> None:

@@ -436,11 +436,11 @@ class ScanMatcher:
         if cov is not None:
             cov = increment_covariance(cov, self._pose)
         if source == "matched" and cfg.method == "correlative":
-            self._odometry.learn(inc, wheel, cfg.correlative.odometry)
             if measured is not None and self._calibration.enabled:  # (a match the odometry
-                # was fused into)
+                # was fused into, weighed against the prior it was fused with)
                 self._calibration.learn(relative(self._pose, measured), raw, scan_share(
                     cov, wheel, self._odometry.std(wheel, cfg.correlative.odometry)))
+            self._odometry.learn(inc, wheel, cfg.correlative.odometry)
         self._pose = pose
         self._last_increment = inc
         key = self._key_pose
