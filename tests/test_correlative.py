@@ -477,6 +477,23 @@ def test_the_odometrys_systematic_errors_are_learned_from_the_matches():
     assert off.correct(wheel) == wheel  # calibrate_odometry = false: the odometry as it is
 
 
+def test_a_noisy_wheel_turn_does_not_shrink_the_learned_rotation_scale():
+    """A wheel that turns 6% short, each step's turn blurred by noise larger than the turn
+    itself (a real robot's odometry step by step), matched precisely: the calibration
+    learns the 6%, where the match's turn regressed on the wheel's would give a scale of
+    about 0.5 (the noise is half the wheel's variance), held at SCALE_LIMIT's 0.8."""
+    from dynslam_cli.localization.correlative import OdometryCalibration
+
+    rng = np.random.default_rng(5)
+    calibration = OdometryCalibration(enabled=True)
+    for k in range(6000):
+        true = Pose2D(0.05, 0.0, 0.01 * math.sin(k / 30))
+        wheel = Pose2D(0.05, 0.0, true.theta / 1.06 + rng.normal(0, 0.007))
+        calibration.learn(Pose2D(true.x, 0.0, true.theta + rng.normal(0, 0.0005)), wheel)
+    assert calibration.scale_r == pytest.approx(1.06, abs=0.015)
+    assert abs(calibration.drift) < math.radians(0.3)  # (the noise, 0.007 rad / √2000 a step)
+
+
 def test_matches_along_a_featureless_corridor_teach_the_calibration_nothing():
     """Where the scan saw nothing along the way (a corridor: the fused increment is as
     uncertain as the odometry's prior along the travel), the calibration learns no scale

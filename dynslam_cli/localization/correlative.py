@@ -78,9 +78,13 @@ class OdometryScale:
 class OdometryCalibration:
     """The wheel odometry's systematic errors, learned from the log as it is read: a scale
     of its translation, a scale of its rotation and a heading drift per metre driven, such
-    that the true increment is (s_t·dx, s_t·dy, s_r·dθ + b·|d|). Least squares of the
-    matched increments (the scan's own measure, before the odometry is fused into it)
-    against the wheel's, forgetting over LEARN_SCANS matched scans, each parameter pulled
+    that the true increment is (s_t·dx, s_t·dy, s_r·dθ + b·|d|). Least squares between the
+    matched increments (the scan's own measure, before the odometry is fused into it) and
+    the wheel's, each regressed on the one that errs less: the match's translation on the
+    wheel's (a wheel step is known to a few per cent, a match along it often less well),
+    the wheel's turn on the match's (a wheel's turn of one step is mostly its noise: the
+    match's regressed on it would shrink the scale toward zero). Forgetting over
+    LEARN_SCANS matched scans, each parameter pulled
     toward no error by PRIOR_STEPS steps' worth of evidence (so a few matches move it
     little); kept within SCALE_LIMIT and DRIFT_LIMIT_DEG_PER_M. A bias removed, what is left
     of the odometry's error is random, the part its noise model can state honestly."""
@@ -121,19 +125,18 @@ class OdometryCalibration:
         keep = 1.0 - 1.0 / self.LEARN_SCANS
         tt0, rr0, rm0 = self._prior  # (forgetting the data, never the prior)
         d = math.hypot(wheel.x, wheel.y)
-        a = np.array([wheel.theta, d])
+        a = np.array([math.remainder(measured.theta, math.tau), d])
         w_t, w_r = seen
         self._tt = tt0 + keep * (self._tt - tt0) + w_t * np.array(
             [measured.x * wheel.x + measured.y * wheel.y, d * d])
         self._rr = rr0 + keep * (self._rr - rr0) + w_r * np.outer(a, a)
-        self._rm = rm0 + keep * (self._rm - rm0) + w_r * a * math.remainder(measured.theta,
-                                                                            math.tau)
+        self._rm = rm0 + keep * (self._rm - rm0) + w_r * a * wheel.theta
         lo, hi = self.SCALE_LIMIT
         self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
-        s_r, b = np.linalg.solve(self._rr, self._rm)
+        gain, offset = np.linalg.solve(self._rr, self._rm)  # wheel θ = gain·m_θ + offset·d
         limit = math.radians(self.DRIFT_LIMIT_DEG_PER_M)
-        self.scale_r = min(max(float(s_r), lo), hi)
-        self.drift = min(max(float(b), -limit), limit)
+        self.scale_r = min(max(1.0 / max(float(gain), 1e-9), lo), hi)
+        self.drift = min(max(-float(offset) * self.scale_r, -limit), limit)
 
 
 def scan_share(cov: np.ndarray, wheel: Pose2D, sigma: tuple[float, float]) -> tuple[float,
