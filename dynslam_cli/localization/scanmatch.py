@@ -524,8 +524,8 @@ class ScanMatcher:
                     post, source = retry, "recovered"
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
-        if post.score < cfg.min_inliers:
-            return Placed(guess, "fallback", agrees=False)
+        if post.score < cfg.min_inliers:  # (at the odometry's guess: it agrees with it)
+            return Placed(guess, "fallback")
         if cfg.skip_seen_free:  # (where the search placed the scan)
             standing = ~self._map.seen_free(transform_points(post.pose, pts),
                                             cfg.seen_free_views)
