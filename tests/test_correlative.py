@@ -192,10 +192,12 @@ def test_the_office_world_with_odometry_stated_exact_stays_on_it(tmp_path):
     import subprocess
     import sys
 
+    from dynslam_cli.config import load_config, to_toml
+
     root = Path(__file__).resolve().parent.parent
     config = tmp_path / "exact.toml"
-    config.write_text((root / "bench" / "configs" / "exact_odometry.toml").read_text()
-                      + "\n[loop]\nenabled = false\n")
+    config.write_text(to_toml(load_config(root / "bench" / "configs" / "exact_odometry.toml",
+                                          {"loop": {"enabled": False}})))
     run = [sys.executable, "-m", "dynslam_cli"]
     subprocess.run([*run, "simulate", "office", "--seed", "2", "--odometry-noise", "0",
                     "-o", str(tmp_path / "sim")], check=True, capture_output=True)
