@@ -403,7 +403,8 @@ class ScanMatcher:
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
         self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry,
                                                 cfg.correlative.calibrate_rotation)
-        # the last scan whose match agreed with its wheel odometry: its pose and odometry
+        # the last scan placed where its wheel odometry agrees (matched within the
+        # odometry's window, or at its guess where nothing fitted): its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
         # fusion "filter": the covariance of self._pose about the local map (matcher frame)
         self._cov = np.zeros((3, 3))
