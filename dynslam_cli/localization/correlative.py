@@ -100,7 +100,8 @@ class OdometryCalibration:
         self.rotation = rotation  # (False: the translation's scale alone)
         p = self.PRIOR_STEPS
         self._tt = np.array([p * self.STEP_M ** 2, p * self.STEP_M ** 2])  # Σ m·w, Σ w·w
-        # rotation: normal equations over (s_r, b): Σ [w_θ, d]ᵀ[w_θ, d] and Σ [w_θ, d]ᵀ m_θ
+        # rotation: normal equations of wheel θ = gain·m_θ + offset·d over the regressors
+        # a = [m_θ, d]: Σ aᵀa and Σ aᵀ w_θ (s_r = 1 / gain, b = −offset·s_r)
         self._rr = np.diag([p * self.STEP_RAD ** 2, p * self.STEP_M ** 2])
         self._rm = np.array([p * self.STEP_RAD ** 2, 0.0])
         self._prior = (self._tt.copy(), self._rr.copy(), self._rm.copy())
@@ -125,14 +126,16 @@ class OdometryCalibration:
         keep = 1.0 - 1.0 / self.LEARN_SCANS
         tt0, rr0, rm0 = self._prior  # (forgetting the data, never the prior)
         d = math.hypot(wheel.x, wheel.y)
-        a = np.array([math.remainder(measured.theta, math.tau), d])
         w_t, w_r = seen
         self._tt = tt0 + keep * (self._tt - tt0) + w_t * np.array(
             [measured.x * wheel.x + measured.y * wheel.y, d * d])
-        self._rr = rr0 + keep * (self._rr - rr0) + w_r * np.outer(a, a)
-        self._rm = rm0 + keep * (self._rm - rm0) + w_r * a * wheel.theta
         lo, hi = self.SCALE_LIMIT
         self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
+        if not self.rotation:  # (its sums are never read)
+            return
+        a = np.array([math.remainder(measured.theta, math.tau), d])
+        self._rr = rr0 + keep * (self._rr - rr0) + w_r * np.outer(a, a)
+        self._rm = rm0 + keep * (self._rm - rm0) + w_r * a * wheel.theta
         gain, offset = np.linalg.solve(self._rr, self._rm)  # wheel θ = gain·m_θ + offset·d
         limit = math.radians(self.DRIFT_LIMIT_DEG_PER_M)
         self.scale_r = min(max(1.0 / max(float(gain), 1e-9), lo), hi)
