@@ -210,6 +210,22 @@ class DynamicConfig:
     the surfaces alone among beams on S's walls or on what S has not seen yet (a beam's
     edge on a chair leg, the first view of a box's face) updates neither map. 1: every hit
     off the surfaces goes into D."""
+    remember_free: bool = False
+    """True: a cell S once held Free counts as Free in a hit's window for as long as it is not
+    Occupied again. Table 1 keeps what a hit lands on where S is Unknown ("static until seen
+    to move"); that is for space not known yet. Without this, a mover first seen where S was
+    still Unknown (in view from the first scan, or beside a wall) raises the cells it stands
+    on, and each of its next end points, a cell or two on, has them in its window: it drags
+    Unknown along and never enters D for as long as it stays in view. False: the window of
+    S^{t-1} alone, the paper's rule. Off, because the same drag is what lets a wall that a
+    pose error puts a few cells off S stay the wall's: with it, the crowd world seen all
+    round (``simulate crowd --fov 360 --beams 361``, 300 s, three walkers always in view)
+    reports 9 moving tracks, not 51 (with ``--stop-and-go 5``: 5, not 33), and the bag
+    people-walking-rear 3 tracks for its 3 people, not 4; but MIT CSAIL's D grows from 79
+    to 355 cells and its events from 12 appeared / 15 moving to 39 / 38, and the office
+    world (ATE 0.08 m) reports 54 false moving tracks, not 4 (D precision 0.83 -> 0.10).
+    The other worlds: the same maps and events, 2-8 more moving tracks, all on walkers
+    (bench/accuracy.py --modes S/D). It costs a byte a cell."""
 
     def check(self) -> None:
         require([

@@ -311,3 +311,42 @@ def test_ablations_are_worse(tmp_path):
     assert full_events["moved_objects_detected"]["rate"] == 1.0
     assert flat_events["moved_objects_detected"]["rate"] == 0.0
     assert flat["static_map"]["ghost_rate"] > 5 * max(full["static_map"]["ghost_rate"], 0.001)
+
+
+def _room_with_walker(t: int, walker: tuple[float, float] | None) -> Scan:
+    """A 360° scan (0.5° apart: every cell within 5 m crossed) from the origin of a 10 m
+    square room, with a person (a disc of 0.22 m) standing at ``walker``."""
+    angles = np.deg2rad(np.arange(-180.0, 180.0, 0.5))
+    c, s = np.cos(angles), np.sin(angles)
+    ranges = np.minimum(5.0 / np.maximum(np.abs(c), 1e-9), 5.0 / np.maximum(np.abs(s), 1e-9))
+    if walker is not None:
+        along = c * walker[0] + s * walker[1]  # the beam's closest approach to the centre
+        miss = np.hypot(walker[0], walker[1]) ** 2 - along ** 2
+        hit = (along > 0) & (miss < 0.22 ** 2)
+        ranges[hit] = np.minimum(ranges[hit], along[hit] - np.sqrt(0.22 ** 2 - miss[hit]))
+    return Scan(stamp=t / 10, ranges=ranges, angles=angles, max_range=8.0, odom=Pose2D())
+
+
+@pytest.mark.parametrize("remember_free", [False, True])
+def test_a_walker_in_view_from_the_first_scan_goes_into_d(remember_free):
+    """A person walks 3.6 m past a still robot, in view from its first scan, when S around
+    them was still Unknown. Table 1 keeps those first end points (static until seen to
+    move) and, by the window's rule alone, each next end point, a cell or two on, has them
+    in its window: the person drags Unknown along and never enters D. With ``[dynamic]
+    remember_free`` the cells S held Free once count as Free: the person walks into D as
+    soon as they leave where they were first seen, and S keeps none of their path."""
+    slam = DynamicSlam(Config(ekf=STILL, dynamic=DynamicConfig(remember_free=remember_free)))
+    for t in range(61):
+        slam.step(_room_with_walker(t, (2.0, -1.8 + 0.06 * t)))
+
+    def occupied(layer: str) -> np.ndarray:  # (x, y) of its Occupied cells inside the room
+        xy = slam.grids.cell_centres(np.flatnonzero(probability(slam.grids.layers[layer]) > 0.9))
+        return xy[np.all(np.abs(xy) < 4.5, axis=1)]
+
+    last = np.hypot(*(occupied("dynamic") - (2.0, 1.8)).T)  # from where the person stands
+    if remember_free:
+        assert len(last) >= 3 and last.max() < 0.3
+        assert len(occupied("static")) == 0
+    else:
+        assert len(last) == 0
+        assert np.hypot(*(occupied("static") - (2.0, 1.8)).T).max() < 0.3

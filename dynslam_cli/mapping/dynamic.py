@@ -25,6 +25,7 @@ from dynslam_cli.types import Pose2D, Scan
 FREE, UNKNOWN, OCCUPIED = 0, 1, 2
 STATE_NAMES = ("Free", "Unknown", "Occupied")
 HIGH, LOW = "high", "low"
+ONCE_FREE = "once_free"  # the layer of cells S held Free at some time (remember_free)
 
 # Table 1: inverse observation model for the static map, p(S^t | S^{t-1}, o^t).
 TABLE_1 = {
@@ -125,6 +126,21 @@ def unknown_only_beside_walls(grids: GridStack, cells: np.ndarray, radius: int, 
     return ~(unknown[inner] & ~near[inner]).any(axis=(1, 2))
 
 
+def known_free_windows(grids: GridStack, cells: np.ndarray, radius: int, low: float
+                       ) -> np.ndarray:
+    """Whether every cell of the window of ``radius`` cells around each cell (flat indices)
+    is Free in S or was once (``[dynamic] remember_free``; call it where the window holds no
+    Occupied cell): space the map knew free, which only hits of no clear class raised."""
+    rows, cols = grids.world_cells(cells)
+    span = np.arange(-radius, radius + 1)
+    dr, dc = np.meshgrid(span, span, indexing="ij")
+    flat = grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
+    stored = flat >= 0
+    at = np.maximum(flat, 0)
+    free = grids.layers["static"][at] * LOGODDS_STEP < logit(low)
+    return (stored & (free | (grids.layers[ONCE_FREE][at] > 0))).all(axis=(1, 2))
+
+
 def radius_cells(neighbourhood_m: float, resolution: float) -> int:
     return max(0, math.ceil(neighbourhood_m / resolution - 1e-9))
 
@@ -156,6 +172,9 @@ class DynamicMapper:
             self._table_1 = static_model.table({k: "high" if k[1] == OCCUPIED else "low"
                                                 for k in TABLE_1})
             self._table_2 = None
+        self._remember_free = d.enabled and d.remember_free
+        if self._remember_free:
+            self.grids.add_layer(ONCE_FREE, np.uint8)
         self._surfaces = (Surfaces(self.grids, d.surface_m, self._radius, laser.min_range_m,
                                    d.surface_beams)
                           if d.enabled and d.surface_m > 0 and self._radius > 0 else None)
@@ -178,6 +197,8 @@ class DynamicMapper:
                 hit_prev = hit_prev[~lone]
         if self.changes is not None:
             self.changes.record(scan.stamp, observation, hit_prev == FREE)
+        if self._remember_free:
+            self.note_free(observation)
         self.update_static_map(observation, free_prev, hit_prev)
         self.update_dynamic_map(observation, free_prev, hit_prev)
         if self._surfaces is not None:
@@ -244,7 +265,20 @@ class DynamicMapper:
             free_prev = classify_static(s[obs.free], m.free_threshold, m.occupied_threshold)
         hit_prev = classify_neighbourhood(self.grids, obs.hit, self._radius,
                                           m.free_threshold, m.occupied_threshold)
+        if self._remember_free:
+            unknown = np.flatnonzero(hit_prev == UNKNOWN)
+            known = known_free_windows(self.grids, obs.hit[unknown], self._radius,
+                                       m.free_threshold)
+            hit_prev[unknown[known]] = FREE
         return free_prev, hit_prev
+
+    def note_free(self, obs: Observation) -> None:
+        """Remember the cells of a scan that S^{t-1} holds Free (S changes only where a scan
+        reaches, so these notes, with S now, say which cells were ever Free)."""
+        static, once = self.grids.layers["static"], self.grids.layers[ONCE_FREE]
+        low = logit(self._map.free_threshold)
+        for cells in (obs.free, obs.hit):
+            once[cells[static[cells] * LOGODDS_STEP < low]] = 1
 
     def update_static_map(self, obs: Observation, free_prev: np.ndarray,
                           hit_prev: np.ndarray) -> None:
