@@ -52,6 +52,7 @@ class DynamicSlam:
         self._measure = (front.measurement if front is not None else
                          ScanMeasurer.configured(config.ekf, config.match, config.corners))
         self._motion_sources: Counter[str] = Counter()
+        self._mount_error = (0.0, 0.0)  # the front end's, learned so far (frontend.Motion)
         self._loops = (BackEnd(config.loop, config.ekf.noise,
                                   prior.walls() if prior is not None else None)
                        if use_graph else None)
@@ -106,6 +107,7 @@ class DynamicSlam:
         the motion predicted with (increment, covariance; None at the first scan)."""
         motion, corners = self._measure(scan)
         self._motion_sources[motion.source] += 1
+        self._mount_error = motion.mount_error
         if self._slam is None:
             start = self.odometry_pose(scan)
             self._slam = CornerSlam(start, self.config.ekf)
@@ -166,6 +168,8 @@ class DynamicSlam:
             out.update(self._loops.counts())
         if self._prior is not None:
             out["prior"] = self._prior.report
+        if self.config.match.correlative.calibrate_mount:
+            out["laser_mount_error_m"] = [round(v, 4) for v in self._mount_error]
         return out
 
     def landmarks(self, mapper: DynamicMapper | None = None) -> list[Landmark]:

@@ -390,6 +390,14 @@ class CorrelativeConfig:
     Intel 0.0921, FR079 0.0750, Intel bag 0.1012; five copies MIT 0.0564 (60%), Intel 0.0852
     (29%); drifting office 0.0846: the rotation's learning makes the local SLAM chaotic, so it
     stays off."""
+    calibrate_mount: bool = False
+    """With ``calibrate_odometry``, learn the laser mount's error too: where the log states
+    the laser, less where the wheels turn it about (a converter that wrote it wrong, a laser
+    moved on its robot). Turning, the matches then see the robot turn about another point
+    than the odometry says (OdometryCalibration); the error is learned with the
+    translation's scale and taken out of each wheel increment before it is the match's
+    prior. The trajectory stays in the frame the log states (``summary.json`` says what was
+    learned: ``laser_mount_error_m``)."""
     odometry_glitch: float = 1e-3
     """The odometry's prior never falls below this share of its peak (slips, glitches)."""
     slip_test: str = "refined"

@@ -94,17 +94,29 @@ class OdometryCalibration:
     STEP_M, STEP_RAD = 0.05, 0.02  # a typical step, to weigh the prior
     SCALE_LIMIT = (0.8, 1.25)
     DRIFT_LIMIT_DEG_PER_M = 5.0
+    MOUNT_LIMIT_M = 0.25
 
-    def __init__(self, enabled: bool = False, rotation: bool = True) -> None:
+    def __init__(self, enabled: bool = False, rotation: bool = True, mount: bool = False
+                 ) -> None:
         self.enabled = enabled
         self.rotation = rotation  # (False: the translation's scale alone)
+        self.mount = mount  # (True: the laser mount's error too, :meth:`_learn_with_mount`)
         p = self.PRIOR_STEPS
         self._tt = np.array([p * self.STEP_M ** 2, p * self.STEP_M ** 2])  # Σ m·w, Σ w·w
+        # with the mount: normal equations of m_t = s_t·w_t + (I − R(θ))·e over (s_t, e)
+        self._mm = np.diag([p * self.STEP_M ** 2, p * self.STEP_RAD ** 2, p * self.STEP_RAD ** 2])
+        self._mb = np.array([p * self.STEP_M ** 2, 0.0, 0.0])
+        self.mount_error = (0.0, 0.0)
+        """Where the log states the laser, less where it is seen from the wheels' centre of
+        turning (m, robot frame): the robot frame the matcher places through the stated
+        mount turns about the point this far from its origin. The poses are still reported
+        in the frame the log states (the robot's, as whoever wrote the log defined it)."""
         # rotation: normal equations of wheel θ = gain·m_θ + offset·d over the regressors
         # a = [m_θ, d]: Σ aᵀa and Σ aᵀ w_θ (s_r = 1 / gain, b = −offset·s_r)
         self._rr = np.diag([p * self.STEP_RAD ** 2, p * self.STEP_M ** 2])
         self._rm = np.array([p * self.STEP_RAD ** 2, 0.0])
-        self._prior = (self._tt.copy(), self._rr.copy(), self._rm.copy())
+        self._prior = (self._tt.copy(), self._rr.copy(), self._rm.copy(), self._mm.copy(),
+                       self._mb.copy())
         self.scale_t, self.scale_r, self.drift = 1.0, 1.0, 0.0  # drift: rad per m
 
     def correct(self, wheel: Pose2D) -> Pose2D:
@@ -113,24 +125,32 @@ class OdometryCalibration:
             return wheel
         theta = (wheel.theta * self.scale_r + self.drift * math.hypot(wheel.x, wheel.y)
                  if self.rotation else wheel.theta)
-        return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t, theta)
+        if not self.mount:
+            return Pose2D(wheel.x * self.scale_t, wheel.y * self.scale_t, theta)
+        ex, ey = _lever(theta) @ self.mount_error
+        return Pose2D(wheel.x * self.scale_t + ex, wheel.y * self.scale_t + ey, theta)
 
-    def learn(self, measured: Pose2D, wheel: Pose2D, seen: tuple[float, float] = (1.0, 1.0)
-              ) -> None:
+    def learn(self, measured: Pose2D, wheel: Pose2D, seen: tuple[float, float] = (1.0, 1.0),
+              seen_xy: np.ndarray | None = None) -> None:
         """One matched increment and the raw wheel increment, both in the previous robot
         frame; ``seen``: how much of the match's translation along the wheel's and of its
         rotation the scan saw (0-1, :func:`scan_share`), its weight in the sums (a match
-        along a featureless corridor is the odometry's own and teaches nothing of it)."""
+        along a featureless corridor is the odometry's own and teaches nothing of it);
+        ``seen_xy``: the same for the translation in every direction (2×2,
+        :func:`seen_matrix`), which the mount's error needs."""
         if not self.enabled:
             return
         keep = 1.0 - 1.0 / self.LEARN_SCANS
-        tt0, rr0, rm0 = self._prior  # (forgetting the data, never the prior)
+        tt0, rr0, rm0, _, _ = self._prior  # (forgetting the data, never the prior)
         d = math.hypot(wheel.x, wheel.y)
         w_t, w_r = seen
-        self._tt = tt0 + keep * (self._tt - tt0) + w_t * np.array(
-            [measured.x * wheel.x + measured.y * wheel.y, d * d])
         lo, hi = self.SCALE_LIMIT
-        self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
+        if self.mount and seen_xy is not None:
+            self._learn_with_mount(measured, wheel, seen_xy, keep)
+        else:
+            self._tt = tt0 + keep * (self._tt - tt0) + w_t * np.array(
+                [measured.x * wheel.x + measured.y * wheel.y, d * d])
+            self.scale_t = min(max(self._tt[0] / self._tt[1], lo), hi)
         if not self.rotation:  # (its sums are never read)
             return
         a = np.array([math.remainder(measured.theta, math.tau), d])
@@ -140,6 +160,42 @@ class OdometryCalibration:
         limit = math.radians(self.DRIFT_LIMIT_DEG_PER_M)
         self.scale_r = min(max(1.0 / max(float(gain), 1e-9), lo), hi)
         self.drift = min(max(-float(offset) * self.scale_r, -limit), limit)
+
+
+    def _learn_with_mount(self, measured: Pose2D, wheel: Pose2D, seen: np.ndarray,
+                          keep: float) -> None:
+        """The translation's scale and the laser mount's error together. A log that states
+        its laser ``e`` off where it is makes every match see the robot turn about another
+        point: the matched translation is the wheel's, scaled, plus (I − R(θ))·e (θ the
+        matched turn; :func:`_lever`), so the turns tell ``e`` apart from the scale.
+        Weighted least squares, each match by what its scan saw of the translation
+        (``seen``, 2×2), ``e`` pulled toward 0 as much as PRIOR_STEPS turns of STEP_RAD."""
+        _, _, _, mm0, mb0 = self._prior
+        jac = np.column_stack(([wheel.x, wheel.y], _lever(measured.theta)))
+        self._mm = mm0 + keep * (self._mm - mm0) + jac.T @ seen @ jac
+        self._mb = mb0 + keep * (self._mb - mb0) + jac.T @ seen @ [measured.x, measured.y]
+        scale, ex, ey = np.linalg.solve(self._mm, self._mb)
+        lo, hi = self.SCALE_LIMIT
+        self.scale_t = min(max(float(scale), lo), hi)
+        reach = math.hypot(ex, ey)
+        shrink = min(1.0, self.MOUNT_LIMIT_M / reach) if reach > 0 else 1.0
+        self.mount_error = (float(ex) * shrink, float(ey) * shrink)
+
+
+def _lever(theta: float) -> np.ndarray:
+    """I − R(θ): how far a point ``e`` from the robot's centre is carried, in the previous
+    robot frame, beyond the centre's own motion by a turn of θ (its lever)."""
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[1.0 - c, s], [-s, 1.0 - c]])
+
+
+def seen_matrix(cov: np.ndarray, sigma_t: float) -> np.ndarray:
+    """How much of a fused increment's translation (covariance ``cov``, previous robot frame)
+    the scan determined in each direction, against the odometry's prior (standard deviation
+    ``sigma_t``): I − Σ/σ², its eigenvalues kept within 0–1 (along the travel it is
+    :func:`scan_share`'s first)."""
+    values, vectors = np.linalg.eigh(cov[:2, :2] / max(sigma_t, 1e-9) ** 2)
+    return (vectors * np.clip(1.0 - values, 0.0, 1.0)) @ vectors.T
 
 
 def scan_share(cov: np.ndarray, wheel: Pose2D, sigma: tuple[float, float]) -> tuple[float,

@@ -27,11 +27,13 @@ class Motion(NamedTuple):
     guesses), ``fallback`` (no good match: wheel odometry), or ``odometry`` (no match tried:
     the first scan, a sparse local map, or scan matching switched off); with the covariance
     of a matched increment (its information from the match, fused with the odometry's), or
-    None (the odometry's noise model applies)."""
+    None (the odometry's noise model applies); and the laser mount's error learned so far
+    (``[match.correlative] calibrate_mount``; for the summary)."""
 
     increment: Pose2D
     source: str
     cov: np.ndarray | None = None
+    mount_error: tuple[float, float] = (0.0, 0.0)
 
     @property
     def matched(self) -> bool:
@@ -86,5 +88,5 @@ class ScanMeasurer:
 
     def motion(self, scan: Scan) -> Motion:
         if self._matcher is not None:
-            return Motion(*self._matcher.increment(scan))
+            return Motion(*self._matcher.increment(scan), self._matcher.mount_error)
         return Motion(self._wheel.increment(scan.odom), "odometry")

@@ -41,6 +41,7 @@ from dynslam_cli.localization.correlative import (
     sampled_walls,
     scan_share,
     search,
+    seen_matrix,
     with_points,
 )
 from dynslam_cli.localization.ekf import motion_std
@@ -402,7 +403,8 @@ class ScanMatcher:
         self._last_increment = Pose2D()
         self._odometry = OdometryScale(cfg.correlative.learn_odometry)
         self._calibration = OdometryCalibration(cfg.correlative.calibrate_odometry,
-                                                cfg.correlative.calibrate_rotation)
+                                                cfg.correlative.calibrate_rotation,
+                                                cfg.correlative.calibrate_mount)
         # the last scan placed where its wheel odometry agrees (matched within the
         # odometry's window, or at its guess where nothing fitted): its pose and odometry
         self._anchor: tuple[Pose2D, Pose2D] | None = None
@@ -439,8 +441,10 @@ class ScanMatcher:
         if source == "matched" and cfg.method == "correlative":
             if measured is not None and self._calibration.enabled:  # (a match the odometry
                 # was fused into, weighed against the prior it was fused with)
-                self._calibration.learn(relative(self._pose, measured), raw, scan_share(
-                    cov, wheel, self._odometry.std(wheel, cfg.correlative.odometry)))
+                sigma = self._odometry.std(wheel, cfg.correlative.odometry)
+                self._calibration.learn(relative(self._pose, measured), raw,
+                                        scan_share(cov, wheel, sigma),
+                                        seen_matrix(cov, sigma[0]))
             self._odometry.learn(inc, wheel, cfg.correlative.odometry)
         self._pose = pose
         self._last_increment = inc
@@ -453,6 +457,12 @@ class ScanMatcher:
                           if cfg.clear_seen_through or cfg.skip_seen_free else None)
             self._key_pose = pose
         return inc, source, cov
+
+    @property
+    def mount_error(self) -> tuple[float, float]:
+        """The laser mount's error learned so far (OdometryCalibration.mount_error; 0 where
+        it is not learned)."""
+        return self._calibration.mount_error
 
     def _predicted(self, wheel: Pose2D) -> np.ndarray | None:
         """Fusion "filter": the covariance of the odometry's guess, the last pose's
