@@ -547,6 +547,37 @@ def test_matches_along_a_featureless_corridor_teach_the_calibration_nothing():
     assert seeing.correct(turn).theta == turn.theta
 
 
+def test_a_laser_stated_off_where_it_is_is_learned_from_the_turns():
+    """A log states its laser 8 cm ahead of where the wheels turn it about, and its
+    odometry is 4% long: every match sees the robot turn about a point 8 cm behind, a
+    lever of (I − R(θ))·e beside the scaled wheel step. The calibration learns both, so
+    the corrected wheel increment predicts the match; straight driving alone teaches no
+    lever, and with calibrate_mount off the odometry keeps its lever."""
+    from dynslam_cli.localization.correlative import OdometryCalibration, _lever, seen_matrix
+
+    rng = np.random.default_rng(7)
+    error = np.array([0.08, 0.0])  # where the log states the laser, less where it turns
+    seen = seen_matrix(np.diag([1e-6, 1e-6, 1e-6]), 0.01)
+    learned, straight, off = (OdometryCalibration(enabled=True, rotation=False, mount=m)
+                              for m in (True, True, False))
+    for k in range(3000):
+        turn = 0.2 * math.sin(k / 25)  # (up to 11° a step, as a robot turning on the spot)
+        step = np.array([0.04 * math.cos(k / 60) ** 2, 0.0])
+        match = step + _lever(turn) @ error + rng.normal(0, 0.002, 2)
+        wheel = Pose2D(1.04 * step[0], 0.0, turn)
+        learned.learn(Pose2D(match[0], match[1], turn), wheel, seen_xy=seen)
+        straight.learn(Pose2D(step[0], 0.0, 0.0), Pose2D(1.04 * step[0], 0.0, 0.0),
+                       seen_xy=seen)
+        off.learn(Pose2D(match[0], match[1], turn), wheel, seen_xy=seen)
+    assert learned.mount_error == pytest.approx(tuple(error), abs=0.005)
+    assert learned.scale_t == pytest.approx(1 / 1.04, abs=0.005)
+    fixed = learned.correct(Pose2D(0.0, 0.0, 0.3))  # a turn on the spot: the laser swings
+    assert (fixed.x, fixed.y) == pytest.approx(tuple(_lever(0.3) @ error), abs=0.002)
+    assert straight.mount_error == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert straight.scale_t == pytest.approx(1 / 1.04, abs=0.005)
+    assert off.mount_error == (0.0, 0.0) and off.correct(Pose2D(0.0, 0.0, 0.3)).x == 0.0
+
+
 def test_a_match_fused_with_the_odometry_keeps_it_where_the_scan_sees_nothing():
     from dynslam_cli.localization.scanmatch import fused_pose
 
