@@ -10,7 +10,8 @@ the covariance the matcher gave it: eᵀ Σ⁻¹ e, whose mean is 3 (the degrees
 an honest covariance, above for an overconfident one.
 
     python bench/calibration.py [--worlds office,hall] [--radish intel,aces]
-                                [--level moderate] [--method icp|correlative]
+                                [--level moderate] [--benchmark mit,intel,fr079]
+                                [--method icp|correlative]
                                 [--config FILE] [--duration 300] [--rate 10]
 """
 
@@ -20,6 +21,7 @@ import argparse
 import math
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from dynslam_cli.config import Config, load_config  # noqa: E402
-from dynslam_cli.geometry import relative  # noqa: E402
+from dynslam_cli.geometry import compose, compound_covariance, relative  # noqa: E402
 from dynslam_cli.localization.scanmatch import ScanMatcher  # noqa: E402
 from dynslam_cli.simulate import (  # noqa: E402
     WORLD_NAMES,
@@ -40,6 +42,7 @@ from dynslam_cli.simulate import (  # noqa: E402
 )
 from dynslam_cli.types import Pose2D  # noqa: E402
 from dynslam_formats import ReaderOptions, open_log  # noqa: E402
+from dynslam_formats.relations import read_relations  # noqa: E402
 from dynslam_formats.simlogs import write_carmen  # noqa: E402
 
 
@@ -63,6 +66,41 @@ def radish_nees(name: str, level: str, config: Config) -> dict:
     return {"world": f"{name} ({level})", **nees(prepared(name, level, 0), truth, config)}
 
 
+def benchmark_nees(name: str, config: Config, max_dt: float = 5.0) -> dict:
+    """NEES on a raw benchmark log (bench/relations.py's, its real odometry) against its
+    ground-truth relations no longer than ``max_dt`` seconds: the matched increments between
+    the relation's two scans composed, their covariances with them (to first order); a
+    relation across a scan the matcher did not match is left out."""
+    from relations import DATA, LOGS
+
+    path, rel, laser = LOGS[name]
+    config = replace(config, laser=replace(config.laser, **laser))
+    matcher = ScanMatcher(config.match, config.ekf.noise)
+    source, _, reader = open_log(str(DATA / path),
+                                 ReaderOptions(**config.laser.reader_options()))
+    stamps, steps = [], []
+    for scan in reader.scans():
+        inc, _, cov = matcher.increment(scan)
+        stamps.append(scan.stamp)
+        steps.append((inc, cov))
+    source.close()
+    stamps = np.array(stamps)
+    values, errors = [], []
+    for t1, t2, x, y, _, _, _, yaw in read_relations(DATA / "relations" / f"{rel}.relations"):
+        i, j = (int(np.argmin(np.abs(stamps - t))) for t in (t1, t2))
+        if (t2 - t1 > max_dt or j <= i or abs(stamps[i] - t1) > 0.1 or abs(stamps[j] - t2) > 0.1
+                or any(cov is None for _, cov in steps[i + 1:j + 1])):
+            continue
+        pose, cov = Pose2D(), np.zeros((3, 3))
+        for inc, inc_cov in steps[i + 1:j + 1]:
+            cov = compound_covariance(pose, cov, inc, inc_cov)
+            pose = compose(pose, inc)
+        e = np.array([pose.x - x, pose.y - y, math.remainder(pose.theta - yaw, math.tau)])
+        values.append(float(e @ np.linalg.solve(cov, e)))
+        errors.append(e)
+    return {"world": f"{name} (relations)", **_scores(values, errors, config)}
+
+
 def nees(log: Path, poses: list[Pose2D], config: Config) -> dict:
     """The matcher's increments over ``log``, scored against the increments of ``poses``
     (one per scan)."""
@@ -79,6 +117,10 @@ def nees(log: Path, poses: list[Pose2D], config: Config) -> dict:
         values.append(float(e @ np.linalg.solve(cov, e)))
         errors.append(e)
     source.close()
+    return _scores(values, errors, config)
+
+
+def _scores(values: list[float], errors: list[np.ndarray], config: Config) -> dict:
     v, err = np.array(values), np.array(errors)
     return {"method": config.match.method, "matched": len(v),
             "nees_mean": float(v.mean()), "nees_median": float(np.median(v)),
@@ -91,6 +133,9 @@ def main() -> None:
     ap.add_argument("--worlds", default=",".join(WORLD_NAMES))
     ap.add_argument("--radish", default="", help="Radish logs, comma-separated")
     ap.add_argument("--level", default="moderate", help="their odometry (bench/radish.py)")
+    ap.add_argument("--benchmark", default="",
+                    help="raw benchmark logs (bench/relations.py's: mit, intel, fr079, ...), "
+                         "scored by their relations up to 5 s long")
     ap.add_argument("--method", choices=("icp", "correlative"), default="correlative")
     ap.add_argument("--config", type=Path, help="a TOML file the runs start from")
     ap.add_argument("--duration", type=float, default=300.0)
@@ -104,6 +149,7 @@ def main() -> None:
                 for w in args.worlds.split(",") if w]
         runs += [lambda n=n: radish_nees(n, args.level, config)
                  for n in args.radish.split(",") if n]
+        runs += [lambda n=n: benchmark_nees(n, config) for n in args.benchmark.split(",") if n]
         for run in runs:
             r = run()
             print(f"{r['world']:12} {args.method:12} {r['matched']:7} {r['nees_mean']:9.2f} "
