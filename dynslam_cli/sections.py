@@ -133,6 +133,13 @@ class LaserConfig:
     own. A laser's scans reach the logger after the sweep and the transfer (a SICK LMS at
     38.4 kbaud: 94 ms), while the logger reads the odometry at arrival."""
 
+    interlace_s: float = 0.0
+    """A laser that sweeps its beams in two interlaced passes, the even beams in one turn of
+    its mirror and the odd ones in the next (a SICK LMS at half a degree: 13.3 ms apart at
+    75 Hz): the time between the passes (seconds). Each odd beam's angle is turned by the
+    robot's turn in that time, at the odometry's turn rate since the scan before, so a
+    turning robot does not see every wall twice. 0: the beams as the log has them."""
+
     stopped_clock_period_s: float = 1.0
     """Where a log's stamps carry no time (most of its first 50 scans repeat one: the
     corrected Radish freiburg-campus, orebro, belgioioso stamp every scan 0), its scans are
@@ -147,12 +154,13 @@ class LaserConfig:
         return {"fov_deg": self.fov_deg, "beam_step_deg": self.beam_step_deg,
                 "scan_latency_s": self.scan_latency_s, "max_range_m": self.max_range_m,
                 "mount_x_m": self.mount_x_m, "mount_y_m": self.mount_y_m,
-                "mount_deg": self.mount_deg,
+                "mount_deg": self.mount_deg, "interlace_s": self.interlace_s,
                 "stopped_clock_period_s": self.stopped_clock_period_s}
 
     def check(self) -> None:
         require([
             (self.clear_cap_m > 0, "laser.clear_cap_m must be > 0"),
+            (0 <= self.interlace_s <= 0.1, "laser.interlace_s must be in [0, 0.1] s"),
             (self.min_range_m >= 0, "laser.min_range_m must be >= 0"),
             (self.max_range_m is None or self.max_range_m > 0, "laser.max_range_m must be > 0"),
             (self.fov_deg is None or 0 < self.fov_deg <= 360,

@@ -287,6 +287,42 @@ class ScanLatency(ReaderFilter):
             before = scan
 
 
+MAX_TURN_RATE = 4.0  # rad/s: an odometry turning faster between two scans glitched
+
+
+class Interlaced(ReaderFilter):
+    """A reader's scans with the beams of a laser that sweeps them in two interlaced passes
+    (a SICK LMS at half a degree: the even beams in one turn of its mirror, the odd ones in
+    the next) each turned by the robot's turn between the passes, ``delay_s`` at the
+    odometry's turn rate from the scan before, and put in the order of their angles: a
+    turning robot otherwise sees every wall twice, the odd beams' copy turned by that
+    much. A scan with no odometry, or whose odometry turns faster than MAX_TURN_RATE
+    since the scan before (a glitch), stays as it is."""
+
+    def __init__(self, reader: LogReader, delay_s: float) -> None:
+        super().__init__(reader)
+        self.delay_s = delay_s
+
+    def scans(self) -> Iterator[Scan]:
+        before: Scan | None = None
+        for scan in self.reader.scans():
+            yield self._deskewed(scan, before)
+            before = scan
+
+    def _deskewed(self, scan: Scan, before: Scan | None) -> Scan:
+        if (before is None or not (scan.has_odometry and before.has_odometry)
+                or scan.stamp <= before.stamp):
+            return scan
+        rate = (math.remainder(scan.odom.theta - before.odom.theta, math.tau)
+                / (scan.stamp - before.stamp))
+        if rate == 0.0 or abs(rate) > MAX_TURN_RATE:
+            return scan
+        angles = scan.angles.copy()
+        angles[1::2] += rate * self.delay_s
+        order = np.argsort(angles, kind="stable")
+        return dataclasses.replace(scan, angles=angles[order], ranges=scan.ranges[order])
+
+
 CLOCK_PROBE_SCANS = 50  # a log's clock is judged on its first this many scans
 STOPPED_CLOCK = ("time stamps carry no time (most scans repeat one): the scans are timed by "
                  "their order, {:g} s apart ([laser] stopped_clock_period_s)")
@@ -333,8 +369,9 @@ def timed_by_order(stats: ReadStats) -> bool:
 def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
     """``reader`` behind the :class:`ScanGuard` (its beams first spread as ``beam_step_deg``
     says and its laser mounted as ``mount_*`` say, where set; then held to ``max_range_m``,
-    where set), and in a :class:`LogWindow` when the options ask for part of the log: what
-    every reader's scans go through (plugins' too)."""
+    its odometry made older by ``scan_latency_s`` and its odd beams turned by
+    ``interlace_s``, where set), and in a :class:`LogWindow` when the options ask for part
+    of the log: what every reader's scans go through (plugins' too)."""
     if options.beam_step_deg is not None:
         reader = BeamStep(reader, options.beam_step_deg)
     if any(v is not None for v in (options.mount_x_m, options.mount_y_m, options.mount_deg)):
@@ -344,6 +381,8 @@ def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
         reader = RangeLimit(reader, options.max_range_m)
     if options.scan_latency_s > 0:
         reader = ScanLatency(reader, options.scan_latency_s)
+    if options.interlace_s > 0:
+        reader = Interlaced(reader, options.interlace_s)
     if options.start_s is None and options.end_s is None and options.max_scans is None:
         return reader
     return LogWindow(reader, options, name)
