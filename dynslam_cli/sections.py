@@ -133,12 +133,14 @@ class LaserConfig:
     own. A laser's scans reach the logger after the sweep and the transfer (a SICK LMS at
     38.4 kbaud: 94 ms), while the logger reads the odometry at arrival."""
 
-    interlace_s: float = 0.0
+    interlace_s: float | None = None
     """A laser that sweeps its beams in two interlaced passes, the even beams in one turn of
     its mirror and the odd ones in the next (a SICK LMS at half a degree: 13.3 ms apart at
     75 Hz): the time between the passes (seconds). Each odd beam's angle is turned by the
     robot's turn in that time, at the odometry's turn rate since the scan before, so a
-    turning robot does not see every wall twice. 0: the beams as the log has them."""
+    turning robot does not see every wall twice. Unset (None): estimated from the log's
+    first 200 turning scans, taken where it is 3 ms or more (said once). 0: the beams as
+    the log has them."""
 
     stopped_clock_period_s: float = 1.0
     """Where a log's stamps carry no time (most of its first 50 scans repeat one: the
@@ -160,7 +162,8 @@ class LaserConfig:
     def check(self) -> None:
         require([
             (self.clear_cap_m > 0, "laser.clear_cap_m must be > 0"),
-            (0 <= self.interlace_s <= 0.1, "laser.interlace_s must be in [0, 0.1] s"),
+            (self.interlace_s is None or 0 <= self.interlace_s <= 0.1,
+             "laser.interlace_s must be in [0, 0.1] s"),
             (self.min_range_m >= 0, "laser.min_range_m must be >= 0"),
             (self.max_range_m is None or self.max_range_m > 0, "laser.max_range_m must be > 0"),
             (self.fov_deg is None or 0 < self.fov_deg <= 360,

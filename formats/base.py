@@ -33,9 +33,9 @@ class ReaderOptions:
     max_range_m: float | None = None
     """The laser's max range instead of the log's (metres): readings at or beyond it are
     'no return'."""
-    interlace_s: float = 0.0
+    interlace_s: float | None = 0.0
     """A laser that sweeps its beams in two interlaced passes: the time between them (its
-    odd beams turned by the robot's turn in that time)."""
+    odd beams turned by the robot's turn in that time); None: estimated from the log."""
     stopped_clock_period_s: float = 1.0
     """Where the log's stamps carry no time, its scans are timed by their order this many
     seconds apart."""

@@ -288,37 +288,101 @@ class ScanLatency(ReaderFilter):
 
 
 MAX_TURN_RATE = 4.0  # rad/s: an odometry turning faster between two scans glitched
+MIN_TURN_RATE = 0.1  # rad/s: the turns that tell the passes apart
+INTERLACE_PROBE_TURNS = 200  # the delay is estimated from this many turning scans ...
+INTERLACE_PROBE_SCANS = 5000  # ... among a log's first this many at most
+INTERLACED_S = 0.003  # and taken where it is at least this long
+INTERLACED = ("the laser sweeps its beams in two interlaced passes, {:.1f} ms apart: its odd "
+              "beams are turned by the robot's turn in that time ([laser] interlace_s)")
+
+
+def turn_rate(scan: Scan, before: Scan | None) -> float:
+    """The odometry's turn rate (rad/s) from the scan before to ``scan``; 0 where either has
+    no odometry, the clock does not run forward, or the turn is faster than MAX_TURN_RATE
+    (a glitch)."""
+    if (before is None or not (scan.has_odometry and before.has_odometry)
+            or scan.stamp <= before.stamp):
+        return 0.0
+    rate = math.remainder(scan.odom.theta - before.odom.theta, math.tau) / (
+        scan.stamp - before.stamp)
+    return rate if abs(rate) <= MAX_TURN_RATE else 0.0
+
+
+def odd_beam_delay(scans: list[Scan]) -> tuple[float, int]:
+    """How much later than the even beams a laser's odd beams were seen (seconds), and from
+    how many turning scans: each odd beam's range, less the mean of its two even
+    neighbours', is its wall's slope times the angle the robot turned in that time (least
+    squares over smooth stretches of wall; 0 for a laser that sweeps once)."""
+    num = den = 0.0
+    turning = 0
+    for before, scan in itertools.pairwise(scans):
+        rate = turn_rate(scan, before)
+        n = len(scan.ranges) - 1 + len(scan.ranges) % 2  # (the last beam even)
+        if abs(rate) < MIN_TURN_RATE or n < 5:
+            continue
+        turning += 1
+        r, a = scan.ranges, scan.angles
+        left, odd, right = r[0:n - 2:2], r[1:n - 1:2], r[2:n:2]
+        with np.errstate(invalid="ignore"):  # (no returns: inf − inf, never ``ok``)
+            slope = (right - left) / (a[2:n:2] - a[0:n - 2:2])
+            off = odd - (left + right) / 2
+            ok = ((np.maximum(np.maximum(left, right), odd) < scan.max_range)
+                  & (np.abs(right - left) < 0.3) & (np.abs(off) < 0.1))
+        x = slope[ok] * rate
+        num += float(x @ off[ok])
+        den += float(x @ x)
+    return (num / den if den > 0 else 0.0), turning
 
 
 class Interlaced(ReaderFilter):
     """A reader's scans with the beams of a laser that sweeps them in two interlaced passes
     (a SICK LMS at half a degree: the even beams in one turn of its mirror, the odd ones in
     the next) each turned by the robot's turn between the passes, ``delay_s`` at the
-    odometry's turn rate from the scan before, and put in the order of their angles: a
-    turning robot otherwise sees every wall twice, the odd beams' copy turned by that
-    much. A scan with no odometry, or whose odometry turns faster than MAX_TURN_RATE
-    since the scan before (a glitch), stays as it is."""
+    odometry's turn rate from the scan before (:func:`turn_rate`), and put in the order of
+    their angles: a turning robot otherwise sees every wall twice, the odd beams' copy
+    turned by that much. ``delay_s`` None: estimated from the log's first turning scans
+    (:func:`odd_beam_delay`; said once where it is INTERLACED_S or more, else the scans
+    pass as they are)."""
 
-    def __init__(self, reader: LogReader, delay_s: float) -> None:
+    def __init__(self, reader: LogReader, delay_s: float | None) -> None:
         super().__init__(reader)
         self.delay_s = delay_s
 
     def scans(self) -> Iterator[Scan]:
+        scans = iter(self.reader.scans())
+        probe: list[Scan] = []
+        error: Exception | None = None
+        delay = self.delay_s
+        if delay is None:
+            turning = 0
+            try:
+                for scan in scans:
+                    probe.append(scan)
+                    turning += abs(turn_rate(scan, probe[-2] if len(probe) > 1 else None)
+                                   ) >= MIN_TURN_RATE
+                    if turning == INTERLACE_PROBE_TURNS or len(probe) == INTERLACE_PROBE_SCANS:
+                        break
+            except Exception as e:  # (raised after the scans before it, as without the probe)
+                error = e
+            delay, _ = odd_beam_delay(probe)
+            if abs(delay) < INTERLACED_S:
+                delay = 0.0
+            else:
+                self.stats.warn(INTERLACED.format(1000 * delay))
         before: Scan | None = None
-        for scan in self.reader.scans():
-            yield self._deskewed(scan, before)
+        for scan in itertools.chain(probe, () if error else scans):
+            yield self._deskewed(scan, turn_rate(scan, before) * delay)
             before = scan
+        if error is not None:
+            raise error
 
-    def _deskewed(self, scan: Scan, before: Scan | None) -> Scan:
-        if (before is None or not (scan.has_odometry and before.has_odometry)
-                or scan.stamp <= before.stamp):
-            return scan
-        rate = (math.remainder(scan.odom.theta - before.odom.theta, math.tau)
-                / (scan.stamp - before.stamp))
-        if rate == 0.0 or abs(rate) > MAX_TURN_RATE:
+    @staticmethod
+    def _deskewed(scan: Scan, turn: float) -> Scan:
+        """``scan`` with its odd beams turned by ``turn`` (radians), in angle order."""
+        if turn == 0.0:
             return scan
         angles = scan.angles.copy()
-        angles[1::2] += rate * self.delay_s
+        angles[1::2] += turn
         order = np.argsort(angles, kind="stable")
         return dataclasses.replace(scan, angles=angles[order], ranges=scan.ranges[order])
 
@@ -381,7 +445,7 @@ def guarded(reader: LogReader, options: ReaderOptions, name: str) -> LogReader:
         reader = RangeLimit(reader, options.max_range_m)
     if options.scan_latency_s > 0:
         reader = ScanLatency(reader, options.scan_latency_s)
-    if options.interlace_s > 0:
+    if options.interlace_s is None or options.interlace_s > 0:
         reader = Interlaced(reader, options.interlace_s)
     if options.start_s is None and options.end_s is None and options.max_scans is None:
         return reader
