@@ -37,15 +37,19 @@ class ScanStore:
         self._geometry = array("i")  # per scan: index into _shapes
         self._shapes: list[tuple[np.ndarray, Pose2D]] = []  # (angles, laser) met so far
         self._shape_ids: dict[tuple, int] = {}
+        self._odd_turn = array("d")  # per scan: its odd beams' angles less its shape's
+        # (an interlaced laser's, turned by the robot's turn between its passes)
         self._batch: list[np.ndarray] = []  # float32 ranges of scans not coded yet
 
     def add(self, scan: Scan) -> None:
         a, laser = scan.angles, scan.laser
-        key = ((len(a), float(a[0]), float(a[-1])) if len(a) else (0, 0.0, 0.0),
+        even = (len(a) - 1) // 2 * 2  # (the last even beam: the shape is the even beams')
+        key = ((len(a), float(a[0]), float(a[even])) if len(a) else (0, 0.0, 0.0),
                (laser.x, laser.y, laser.theta))
         shape = self._shape_ids.setdefault(key, len(self._shapes))
         if shape == len(self._shapes):
             self._shapes.append((a, laser))
+        self._odd_turn.append(float(a[1] - self._shapes[shape][0][1]) if len(a) > 1 else 0.0)
         if self._batch and len(self._batch[0]) != len(a):
             self._code_batch()  # (a batch is one beam count)
         self._batch.append(scan.ranges.astype(np.float32))
@@ -101,9 +105,12 @@ class ScanStore:
     def scans(self) -> Iterable[Scan]:
         if self._batch:
             self._code_batch()
-        for i, (stamp, max_range, shape) in enumerate(zip(self._stamps, self._max_range,
-                                                          self._geometry, strict=True)):
+        for i, (stamp, max_range, shape, turn) in enumerate(zip(
+                self._stamps, self._max_range, self._geometry, self._odd_turn, strict=True)):
             angles, laser = self._shapes[shape]
+            if turn:
+                angles = angles.copy()
+                angles[1::2] += turn
             yield Scan(stamp, self._ranges(i, len(angles)).astype(np.float64), angles,
                        max_range, Pose2D(), laser)
 

@@ -338,11 +338,10 @@ class Interlaced(ReaderFilter):
     """A reader's scans with the beams of a laser that sweeps them in two interlaced passes
     (a SICK LMS at half a degree: the even beams in one turn of its mirror, the odd ones in
     the next) each turned by the robot's turn between the passes, ``delay_s`` at the
-    odometry's turn rate from the scan before (:func:`turn_rate`), and put in the order of
-    their angles: a turning robot otherwise sees every wall twice, the odd beams' copy
-    turned by that much. ``delay_s`` None: estimated from the log's first turning scans
-    (:func:`odd_beam_delay`; said once where it is INTERLACED_S or more, else the scans
-    pass as they are)."""
+    odometry's turn rate from the scan before (:func:`turn_rate`): a turning robot
+    otherwise sees every wall twice, the odd beams' copy turned by that much. ``delay_s``
+    None: estimated from the log's first turning scans (:func:`odd_beam_delay`; said once
+    where it is INTERLACED_S or more, else the scans pass as they are)."""
 
     def __init__(self, reader: LogReader, delay_s: float | None) -> None:
         super().__init__(reader)
@@ -378,13 +377,14 @@ class Interlaced(ReaderFilter):
 
     @staticmethod
     def _deskewed(scan: Scan, turn: float) -> Scan:
-        """``scan`` with its odd beams turned by ``turn`` (radians), in angle order."""
+        """``scan`` with its odd beams turned by ``turn`` (radians; the beams keep their
+        order, so a turn of more than a beam's spacing puts an odd beam past its even
+        neighbour: each end point is where it was seen all the same)."""
         if turn == 0.0:
             return scan
         angles = scan.angles.copy()
         angles[1::2] += turn
-        order = np.argsort(angles, kind="stable")
-        return dataclasses.replace(scan, angles=angles[order], ranges=scan.ranges[order])
+        return dataclasses.replace(scan, angles=angles)
 
 
 CLOCK_PROBE_SCANS = 50  # a log's clock is judged on its first this many scans
