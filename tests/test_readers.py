@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from importlib.metadata import EntryPoint
@@ -416,3 +417,106 @@ def test_a_mount_stated_wrong_is_read_as_the_user_gives_it(simulated, cli, tmp_p
         ate[name] = json.loads(r.stdout)["truth"]["trajectory"]["ate_rmse_m"]
     assert runs["fixed"] == runs["true"]
     assert ate["wrong"] > 2 * ate["true"], ate
+
+
+class _Scans:
+    """A reader of given scans (what a log reader hands the guard's filters)."""
+
+    def __init__(self, scans):
+        from dynslam_formats.base import ReadStats
+
+        self._scans, self.stats, self.format_name = scans, ReadStats(), "test"
+
+    def scans(self):
+        yield from self._scans
+
+
+def _turning_in_a_room(delay_s: float, steps: int = 300):
+    """A robot turning on the spot in a 10 m square room (0.6 rad/s, its turn rate
+    changing), its laser sweeping 361 beams over 180°, the odd ones ``delay_s`` after the
+    even ones; the scans, and the robot's heading when each scan's even beams were seen."""
+    from dynslam_cli.types import Pose2D, Scan
+
+    angles = np.radians(np.linspace(-90.0, 90.0, 361))
+    scans, headings, heading = [], [], 0.0
+    for k in range(steps):
+        rate = 0.6 * math.sin(k / 20)
+        seen = heading + np.where(np.arange(361) % 2 == 1, rate * delay_s, 0.0) + angles
+        c, s = np.cos(seen), np.sin(seen)
+        ranges = np.minimum(5.0 / np.maximum(np.abs(c), 1e-9), 5.0 / np.maximum(np.abs(s), 1e-9))
+        scans.append(Scan(stamp=0.1 * k, ranges=ranges, angles=angles, max_range=20.0,
+                          odom=Pose2D(0.0, 0.0, heading)))
+        headings.append(heading)
+        heading += 0.1 * rate
+    return scans, headings
+
+
+def _off_the_walls(scan, heading: float) -> np.ndarray:
+    """How far each end point, at the robot's heading, lies off the room's walls (m)."""
+    x = scan.ranges * np.cos(heading + scan.angles)
+    y = scan.ranges * np.sin(heading + scan.angles)
+    return np.minimum(np.abs(np.abs(x) - 5.0), np.abs(np.abs(y) - 5.0))
+
+
+def test_an_interlaced_lasers_odd_beams_are_turned_back_onto_the_walls():
+    """A laser whose odd beams are seen 13 ms after its even ones (a SICK LMS at half a
+    degree), on a turning robot: the log's first turning scans tell the delay, said once,
+    and each odd beam is turned by the robot's turn in that time, so every end point lies
+    on the walls again; a laser that sweeps once is read as it is, and so is a log read
+    with ``interlace_s = 0``."""
+    from dynslam_formats.guard import INTERLACED, Interlaced, odd_beam_delay
+
+    scans, headings = _turning_in_a_room(0.0133)
+    delay, turning = odd_beam_delay(scans)
+    assert delay == pytest.approx(0.0133, rel=0.1) and turning > 200
+    reader = _Scans(scans)
+    deskewed = list(Interlaced(reader, None).scans())
+    [warning] = reader.stats.warnings
+    assert warning.startswith(INTERLACED.split("{")[0])
+    raw = max(_off_the_walls(s, h).max() for s, h in zip(scans, headings, strict=True))
+    fixed = max(_off_the_walls(s, h).max() for s, h in zip(deskewed, headings, strict=True))
+    assert raw > 0.03 and fixed < raw / 10
+    assert all(np.array_equal(a.ranges, b.ranges) for a, b in zip(scans, deskewed, strict=True))
+    assert [s.angles is scans[0].angles for s in Interlaced(_Scans(scans), 0.0).scans()] == \
+        [True] * len(scans)  # (given as 0: nothing turned)
+    once, _ = _turning_in_a_room(0.0)
+    assert abs(odd_beam_delay(once)[0]) < 1e-4
+    reader = _Scans(once)
+    assert all(a is b for a, b in zip(Interlaced(reader, None).scans(), once, strict=True))
+    assert not reader.stats.warnings
+
+
+def test_the_scan_store_gives_back_each_scans_turned_odd_beams():
+    """The maps rebuilt at the end read the scans the run saw: an interlaced laser's scans,
+    their odd beams each turned its own way, come back from the store with those angles."""
+    from dynslam_cli.scanstore import ScanStore
+    from dynslam_formats.guard import Interlaced
+
+    scans, _ = _turning_in_a_room(0.0133, steps=40)
+    deskewed = list(Interlaced(_Scans(scans), 0.0133).scans())
+    store = ScanStore()
+    for scan in deskewed:
+        store.add(scan)
+    back = list(store.scans())
+    assert len({round(float(s.angles[1] - s.angles[0]), 9) for s in back}) > 10
+    for want, got in zip(deskewed, back, strict=True):
+        np.testing.assert_allclose(got.angles, want.angles, rtol=0, atol=1e-12)
+
+
+def test_the_benchmarks_interlaced_lasers_are_told_from_a_single_sweep(datasets):
+    """MIT CSAIL's SICK sweeps its 361 beams in two passes (its odd beams' copy of a wall
+    turns with the robot), Intel's 180 in one: the delay is found on the one, not on the
+    other."""
+    from dynslam_formats import ReaderOptions, open_log
+    from dynslam_formats.guard import INTERLACE_PROBE_SCANS, odd_beam_delay
+
+    def first_scans(path):
+        source, _, reader = open_log(str(path), ReaderOptions())
+        try:
+            return list(itertools.islice(reader.scans(), INTERLACE_PROBE_SCANS))
+        finally:
+            source.close()
+
+    mit, _ = odd_beam_delay(first_scans(datasets / "carmen/mit-csail.clf"))
+    intel, _ = odd_beam_delay(first_scans(datasets / "carmen/kummerle/intel.clf.gz"))
+    assert 0.005 < mit < 0.015 and abs(intel) < 0.001
