@@ -33,7 +33,7 @@ class ReaderOptions:
     max_range_m: float | None = None
     """The laser's max range instead of the log's (metres): readings at or beyond it are
     'no return'."""
-    interlace_s: float | None = 0.0
+    interlace_s: float | None = None
     """A laser that sweeps its beams in two interlaced passes: the time between them (its
     odd beams turned by the robot's turn in that time); None: estimated from the log."""
     stopped_clock_period_s: float = 1.0

@@ -308,6 +308,15 @@ def turn_rate(scan: Scan, before: Scan | None) -> float:
     return rate if abs(rate) <= MAX_TURN_RATE else 0.0
 
 
+def evenly_spaced(angles: np.ndarray) -> bool:
+    """Whether a scan's beams are all there, evenly spaced (a reader that dropped a beam
+    leaves a gap, after which its odd beams are not the odd pass's)."""
+    if len(angles) < 3:
+        return False
+    steps = np.diff(angles)
+    return bool(steps.max() - steps.min() <= 0.25 * abs(float(np.median(steps))))
+
+
 def odd_beam_delay(scans: list[Scan]) -> tuple[float, int]:
     """How much later than the even beams a laser's odd beams were seen (seconds), and from
     how many turning scans: each odd beam's range, less the mean of its two even
@@ -318,7 +327,7 @@ def odd_beam_delay(scans: list[Scan]) -> tuple[float, int]:
     for before, scan in itertools.pairwise(scans):
         rate = turn_rate(scan, before)
         n = len(scan.ranges) - 1 + len(scan.ranges) % 2  # (the last beam even)
-        if abs(rate) < MIN_TURN_RATE or n < 5:
+        if abs(rate) < MIN_TURN_RATE or n < 5 or not evenly_spaced(scan.angles):
             continue
         turning += 1
         r, a = scan.ranges, scan.angles
@@ -379,8 +388,9 @@ class Interlaced(ReaderFilter):
     def _deskewed(scan: Scan, turn: float) -> Scan:
         """``scan`` with its odd beams turned by ``turn`` (radians; the beams keep their
         order, so a turn of more than a beam's spacing puts an odd beam past its even
-        neighbour: each end point is where it was seen all the same)."""
-        if turn == 0.0:
+        neighbour: each end point is where it was seen all the same). A scan a beam is
+        missing from (:func:`evenly_spaced`) stays as it is."""
+        if turn == 0.0 or not evenly_spaced(scan.angles):
             return scan
         angles = scan.angles.copy()
         angles[1::2] += turn
