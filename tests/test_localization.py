@@ -211,6 +211,20 @@ def test_two_sure_corners_closer_than_a_map_cell_are_one_row():
     assert rows[0][4] == pytest.approx(2.024)
 
 
+def test_two_landmarks_fused_into_reach_of_a_corner_are_one_row_with_it():
+    """Two landmarks each a little more than a cell from a corner, and within a cell of each
+    other: fused, they lie within a cell of it, and the landmark map has one row, not two
+    (freiburg-079 had rows 0 and 72 of one corner 4.9 cm apart)."""
+    from dynslam_cli.localization.cornerslam import one_per_corner
+
+    cov = np.diag([1e-4 ** 2, 1e-4 ** 2])  # (so sure that only the cell joins them)
+    xy = np.array([[0.0, 0.0], [0.045, 0.0245], [0.045, -0.0245]])
+    rows = one_per_corner([(0, True, 9), (1, True, 5), (2, True, 5)], xy,
+                          np.array([cov] * 3), 9.21, resolve_m=0.05)
+    assert [(i, seen) for i, _, seen, *_ in rows] == [(0, 19)]
+    assert rows[0][3] == pytest.approx(0.03, abs=1e-6)
+
+
 def test_conditioning_on_the_robot_keeps_the_landmarks_relative_uncertainty():
     """Ekf.condition_on_robot: the means stay, the robot's covariance is 0, a landmark's is
     its covariance given the robot's pose (the inverse of its block of the information

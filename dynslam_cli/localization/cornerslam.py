@@ -306,8 +306,23 @@ def one_per_corner(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs:
     covariance (``covs``, N×2×2; the association gate ``gate_chi2``, χ² 2 dof), or lie
     closer than ``resolve_m`` (the map's cell: the end of a partition one cell thick has
     two corners that S draws as one), are one: the first id, the observations summed, the
-    positions fused by their information. In order of id; returns (id, convex,
-    observations, x, y, covariance)."""
+    positions fused by their information, again over the corners so made until no two are
+    one (a fused position can come within reach of a corner it was not within before). In
+    order of id; returns (id, convex, observations, x, y, covariance)."""
+    while True:
+        merged = _one_pass(landmarks, xy, covs, gate_chi2, resolve_m)
+        if len(merged) == len(landmarks):
+            return merged
+        landmarks = [(i, convex, seen) for i, convex, seen, _, _, _ in merged]
+        xy = np.array([[x, y] for _, _, _, x, y, _ in merged])
+        covs = np.array([cov for *_, cov in merged])
+
+
+def _one_pass(landmarks: list[tuple[int, bool, int]], xy: np.ndarray, covs: np.ndarray,
+              gate_chi2: float, resolve_m: float
+              ) -> list[tuple[int, bool, int, float, float, np.ndarray]]:
+    """:func:`one_per_corner`'s landmarks merged in one pass, each into the first corner
+    made so far that it agrees with."""
     corners: list[_Corner] = []
     for k in np.argsort([i for i, _, _ in landmarks], kind="stable"):
         ident, convex, seen = landmarks[k]
