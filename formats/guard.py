@@ -289,6 +289,7 @@ class ScanLatency(ReaderFilter):
 
 MAX_TURN_RATE = 4.0  # rad/s: an odometry turning faster between two scans glitched
 MIN_TURN_RATE = 0.1  # rad/s: the turns that tell the passes apart
+RATE_GAP_S = 0.5  # scans farther apart tell too little of the turn during one sweep
 INTERLACE_PROBE_TURNS = 200  # the delay is estimated from this many turning scans ...
 INTERLACE_PROBE_SCANS = 5000  # ... among a log's first this many at most
 INTERLACED_S = 0.003  # and taken where it is at least this long
@@ -298,10 +299,11 @@ INTERLACED = ("the laser sweeps its beams in two interlaced passes, {:.1f} ms ap
 
 def turn_rate(scan: Scan, before: Scan | None) -> float:
     """The odometry's turn rate (rad/s) from the scan before to ``scan``; 0 where either has
-    no odometry, the clock does not run forward, or the turn is faster than MAX_TURN_RATE
-    (a glitch)."""
+    no odometry, the clock does not run forward or leaps more than RATE_GAP_S (a log that
+    keeps a scan every second or so: the mean turn between them is not the turn during
+    the sweep), or the turn is faster than MAX_TURN_RATE (a glitch)."""
     if (before is None or not (scan.has_odometry and before.has_odometry)
-            or scan.stamp <= before.stamp):
+            or not 0 < scan.stamp - before.stamp <= RATE_GAP_S):
         return 0.0
     rate = math.remainder(scan.odom.theta - before.odom.theta, math.tau) / (
         scan.stamp - before.stamp)
