@@ -292,7 +292,8 @@ MIN_TURN_RATE = 0.1  # rad/s: the turns that tell the passes apart
 RATE_GAP_S = 0.5  # scans farther apart tell too little of the turn during one sweep
 INTERLACE_PROBE_TURNS = 200  # the delay is estimated from this many turning scans ...
 INTERLACE_PROBE_SCANS = 5000  # ... among a log's first this many at most
-INTERLACED_S = 0.003  # and taken where it is at least this long
+INTERLACED_S = 0.003  # and taken where it is at least this long ...
+INTERLACE_MIN_TURNS = 50  # ... from at least this many turning scans
 INTERLACED = ("the laser sweeps its beams in two interlaced passes, {:.1f} ms apart: its odd "
               "beams are turned by the robot's turn in that time ([laser] interlace_s)")
 
@@ -352,7 +353,8 @@ class Interlaced(ReaderFilter):
     odometry's turn rate from the scan before (:func:`turn_rate`): a turning robot
     otherwise sees every wall twice, the odd beams' copy turned by that much. ``delay_s``
     None: estimated from the log's first turning scans (:func:`odd_beam_delay`; said once
-    where it is INTERLACED_S or more, else the scans pass as they are)."""
+    where it is INTERLACED_S or more from INTERLACE_MIN_TURNS turning scans or more, else
+    the scans pass as they are)."""
 
     def __init__(self, reader: LogReader, delay_s: float | None) -> None:
         super().__init__(reader)
@@ -374,8 +376,8 @@ class Interlaced(ReaderFilter):
                         break
             except Exception as e:  # (raised after the scans before it, as without the probe)
                 error = e
-            delay, _ = odd_beam_delay(probe)
-            if abs(delay) < INTERLACED_S:
+            delay, turns = odd_beam_delay(probe)
+            if abs(delay) < INTERLACED_S or turns < INTERLACE_MIN_TURNS:
                 delay = 0.0
             else:
                 self.stats.warn(INTERLACED.format(1000 * delay))

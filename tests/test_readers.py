@@ -463,8 +463,8 @@ def test_an_interlaced_lasers_odd_beams_are_turned_back_onto_the_walls():
     """A laser whose odd beams are seen 13 ms after its even ones (a SICK LMS at half a
     degree), on a turning robot: the log's first turning scans tell the delay, said once,
     and each odd beam is turned by the robot's turn in that time, so every end point lies
-    on the walls again; a laser that sweeps once is read as it is, and so is a log read
-    with ``interlace_s = 0``."""
+    on the walls again; a laser that sweeps once is read as it is, and so are a log read
+    with ``interlace_s = 0`` and one with too few turns to tell."""
     from dynslam_formats.guard import INTERLACED, Interlaced, odd_beam_delay
 
     scans, headings = _turning_in_a_room(0.0133)
@@ -484,6 +484,8 @@ def test_an_interlaced_lasers_odd_beams_are_turned_back_onto_the_walls():
                               angles=np.delete(scans[50].angles, 100))
     assert list(Interlaced(_Scans([scans[49], gap]), 0.0133).scans())[1] is gap  # (a beam
     # dropped: which beams are the odd pass's is not known)
+    few, _ = _turning_in_a_room(0.0133, steps=30)  # (too few turns to tell)
+    assert all(a is b for a, b in zip(Interlaced(_Scans(few), None).scans(), few, strict=True))
     once, _ = _turning_in_a_room(0.0)
     assert abs(odd_beam_delay(once)[0]) < 1e-4
     reader = _Scans(once)
