@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -287,6 +287,32 @@ class ScanLatency(ReaderFilter):
             before = scan
 
 
+def read_ahead(scans: Iterator[Scan], enough: Callable[[list[Scan]], bool]
+               ) -> tuple[list[Scan], Exception | None]:
+    """A log's first scans, read until ``enough`` says so of those read (or the log ends),
+    and the error that ended the reading before, if one did (:func:`replayed` raises it
+    after the scans before it, as reading without looking ahead would)."""
+    probe: list[Scan] = []
+    try:
+        for scan in scans:
+            probe.append(scan)
+            if enough(probe):
+                break
+    except Exception as e:
+        return probe, e
+    return probe, None
+
+
+def replayed(probe: list[Scan], error: Exception | None, scans: Iterator[Scan]
+             ) -> Iterator[Scan]:
+    """The scans read ahead (:func:`read_ahead`), then the error that ended them or the
+    rest of the log."""
+    yield from probe
+    if error is not None:
+        raise error
+    yield from scans
+
+
 MAX_TURN_RATE = 4.0  # rad/s: an odometry turning faster between two scans glitched
 MIN_TURN_RATE = 0.1  # rad/s: the turns that tell the passes apart
 RATE_GAP_S = 0.5  # scans farther apart tell too little of the turn during one sweep
@@ -367,26 +393,23 @@ class Interlaced(ReaderFilter):
         delay = self.delay_s
         if delay is None:
             turning = 0
-            try:
-                for scan in scans:
-                    probe.append(scan)
-                    turning += abs(turn_rate(scan, probe[-2] if len(probe) > 1 else None)
-                                   ) >= MIN_TURN_RATE
-                    if turning == INTERLACE_PROBE_TURNS or len(probe) == INTERLACE_PROBE_SCANS:
-                        break
-            except Exception as e:  # (raised after the scans before it, as without the probe)
-                error = e
+
+            def enough(probe: list[Scan]) -> bool:
+                nonlocal turning
+                turning += abs(turn_rate(probe[-1], probe[-2] if len(probe) > 1 else None)
+                               ) >= MIN_TURN_RATE
+                return turning == INTERLACE_PROBE_TURNS or len(probe) == INTERLACE_PROBE_SCANS
+
+            probe, error = read_ahead(scans, enough)
             delay, turns = odd_beam_delay(probe)
             if abs(delay) < INTERLACED_S or turns < INTERLACE_MIN_TURNS:
                 delay = 0.0
             else:
                 self.stats.warn(INTERLACED.format(1000 * delay))
         before: Scan | None = None
-        for scan in itertools.chain(probe, () if error else scans):
+        for scan in replayed(probe, error, scans):
             yield self._deskewed(scan, turn_rate(scan, before) * delay)
             before = scan
-        if error is not None:
-            raise error
 
     @staticmethod
     def _deskewed(scan: Scan, turn: float) -> Scan:
@@ -420,22 +443,12 @@ class ScanOrderClock(ReaderFilter):
 
     def scans(self) -> Iterator[Scan]:
         scans = iter(self.reader.scans())
-        probe: list[Scan] = []
-        error: Exception | None = None
-        try:
-            for scan in scans:
-                probe.append(scan)
-                if len(probe) == CLOCK_PROBE_SCANS:
-                    break
-        except Exception as e:  # (raised after the scans before it, as without the probe)
-            error = e
+        probe, error = read_ahead(scans, lambda probe: len(probe) == CLOCK_PROBE_SCANS)
         stopped = clock_stopped(np.array([scan.stamp for scan in probe]))
         if stopped:
             self.stats.warn(STOPPED_CLOCK.format(self.period_s))
-        for i, scan in enumerate(itertools.chain(probe, () if error else scans)):
+        for i, scan in enumerate(replayed(probe, error, scans)):
             yield dataclasses.replace(scan, stamp=i * self.period_s) if stopped else scan
-        if error is not None:
-            raise error
 
 
 def timed_by_order(stats: ReadStats) -> bool:
