@@ -142,11 +142,12 @@ class LaserConfig:
     Unset (None, the default since stop 61): estimated from the log's first 200 turning
     scans, taken where it is 3 ms or more from 50 of them or more (said once: MIT CSAIL
     7.4 ms, FR079 11.3; Intel's SICK at one degree sweeps once, and the built-in worlds'
-    laser too). 0: the beams as the log has them. Measured at 09cfc1f, this machine,
+    laser too). 0: the beams as the log has them. Measured at 385007d, this machine,
     relations, pose graph off / on, before -> after: MIT 0.0564 / 0.0266 -> 0.0384 /
-    0.0266 m, FR079 0.0879 / 0.0649 -> 0.0725 / 0.0648, its bag 0.0754 / 0.0648 -> 0.0754 /
-    0.0622, with the original mount 0.0551 / 0.0306 -> 0.0387 / 0.0304 and its bag 0.0668 /
-    0.0311 -> 0.0523 / 0.0311; Intel, its bag and the worlds unchanged."""
+    0.0266 m, FR079 0.0879 / 0.0649 -> 0.0724 / 0.0648, its bag 0.0754 / 0.0648 -> 0.0746 /
+    0.0622, with the original mount 0.0551 / 0.0306 -> 0.0389 / 0.0304 and its bag 0.0668 /
+    0.0311 -> 0.0523 / 0.0311; Intel, its bag, the worlds and the Radish rows but
+    freiburg-079's (0.0825 / 0.0820 / 0.0796 -> 0.0844 / 0.0774 / 0.0788) unchanged."""
 
     stopped_clock_period_s: float = 1.0
     """Where a log's stamps carry no time (most of its first 50 scans repeat one: the
