@@ -75,16 +75,9 @@ def benchmark_nees(name: str, config: Config, max_dt: float = 5.0) -> dict:
 
     path, rel, laser = LOGS[name]
     config = replace(config, laser=replace(config.laser, **laser))
-    matcher = ScanMatcher(config.match, config.ekf.noise)
-    source, _, reader = open_log(str(DATA / path),
-                                 ReaderOptions(**config.laser.reader_options()))
-    stamps, steps = [], []
-    for scan in reader.scans():
-        inc, _, cov = matcher.increment(scan)
-        stamps.append(scan.stamp)
-        steps.append((inc, cov))
-    source.close()
-    stamps = np.array(stamps)
+    matched = matched_increments(DATA / path, config)
+    stamps = np.array([stamp for stamp, _, _ in matched])
+    steps = [(inc, cov) for _, inc, cov in matched]
     values, errors = [], []
     for t1, t2, x, y, _, _, _, yaw in read_relations(DATA / "relations" / f"{rel}.relations"):
         i, j = (int(np.argmin(np.abs(stamps - t))) for t in (t1, t2))
@@ -101,14 +94,27 @@ def benchmark_nees(name: str, config: Config, max_dt: float = 5.0) -> dict:
     return {"world": f"{name} (relations)", **_scores(values, errors, config)}
 
 
+def matched_increments(log: Path, config: Config
+                       ) -> list[tuple[float, Pose2D, np.ndarray | None]]:
+    """Each scan of ``log`` as the front end matches them one after another: its stamp,
+    its increment and the increment's covariance (None where it was not matched)."""
+    matcher = ScanMatcher(config.match, config.ekf.noise)
+    source, _, reader = open_log(str(log), ReaderOptions(**config.laser.reader_options()))
+    out = []
+    try:
+        for scan in reader.scans():
+            inc, _, cov = matcher.increment(scan)
+            out.append((scan.stamp, inc, cov))
+    finally:
+        source.close()
+    return out
+
+
 def nees(log: Path, poses: list[Pose2D], config: Config) -> dict:
     """The matcher's increments over ``log``, scored against the increments of ``poses``
     (one per scan)."""
-    matcher = ScanMatcher(config.match, config.ekf.noise)
-    source, _, reader = open_log(str(log), ReaderOptions(**config.laser.reader_options()))
     values, errors = [], []
-    for k, scan in enumerate(reader.scans()):
-        inc, _, cov = matcher.increment(scan)
+    for k, (_, inc, cov) in enumerate(matched_increments(log, config)):
         if k == 0 or cov is None:
             continue
         true = relative(poses[k - 1], poses[k])
@@ -116,7 +122,6 @@ def nees(log: Path, poses: list[Pose2D], config: Config) -> dict:
                       math.remainder(inc.theta - true.theta, math.tau)])
         values.append(float(e @ np.linalg.solve(cov, e)))
         errors.append(e)
-    source.close()
     return _scores(values, errors, config)
 
 

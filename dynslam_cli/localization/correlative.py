@@ -161,7 +161,6 @@ class OdometryCalibration:
         self.scale_r = min(max(1.0 / max(float(gain), 1e-9), lo), hi)
         self.drift = min(max(-float(offset) * self.scale_r, -limit), limit)
 
-
     def _learn_with_mount(self, measured: Pose2D, wheel: Pose2D, seen: np.ndarray,
                           keep: float) -> None:
         """The translation's scale and the laser mount's error together. A log that states

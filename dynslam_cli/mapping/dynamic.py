@@ -105,15 +105,21 @@ def classify_neighbourhood(grids: GridStack, cells: np.ndarray, radius: int, low
     return grids.classify_cells("static", cells, radius, logit(low), logit(high))
 
 
+def window_cells(grids: GridStack, cells: np.ndarray, radius: int) -> np.ndarray:
+    """The flat indices of the square window of ``radius`` cells around each cell (flat
+    indices; N × (2·radius + 1)²), -1 where no tile holds a cell."""
+    rows, cols = grids.world_cells(cells)
+    span = np.arange(-radius, radius + 1)
+    dr, dc = np.meshgrid(span, span, indexing="ij")
+    return grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
+
+
 def unknown_only_beside_walls(grids: GridStack, cells: np.ndarray, radius: int, low: float,
                               high: float) -> np.ndarray:
     """Whether every Unknown cell in the window of ``radius`` cells around each cell (flat
     indices) touches an Occupied one: the strip in front of a wall that no beam passed (free
     space stops a cell short of a hit), not the edge of what the robot has seen."""
-    rows, cols = grids.world_cells(cells)
-    span = np.arange(-radius - 1, radius + 2)
-    dr, dc = np.meshgrid(span, span, indexing="ij")
-    flat = grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
+    flat = window_cells(grids, cells, radius + 1)
     static = grids.layers["static"]
     state = classify_static(np.where(flat >= 0, static[np.maximum(flat, 0)], 0), low, high)
     occupied, unknown = state == OCCUPIED, state == UNKNOWN
@@ -131,10 +137,7 @@ def known_free_windows(grids: GridStack, cells: np.ndarray, radius: int, low: fl
     """Whether every cell of the window of ``radius`` cells around each cell (flat indices)
     is Free in S or was once (``[dynamic] remember_free``; call it where the window holds no
     Occupied cell): space the map knew free, which only hits of no clear class raised."""
-    rows, cols = grids.world_cells(cells)
-    span = np.arange(-radius, radius + 1)
-    dr, dc = np.meshgrid(span, span, indexing="ij")
-    flat = grids.flat_cells(rows[:, None, None] + dr, cols[:, None, None] + dc)
+    flat = window_cells(grids, cells, radius)
     stored = flat >= 0
     at = np.maximum(flat, 0)
     free = grids.layers["static"][at] * LOGODDS_STEP < logit(low)
