@@ -442,3 +442,21 @@ def test_a_place_revisited_for_hours_does_not_grow_the_graph(cli, tmp_path):
     assert counts["revisits"] > nodes["revisit", 300]  # most placements are revisits
     assert nodes["plain", 300] > 1.8 * nodes["plain", 150]
     assert nodes["revisit", 300] < 1.1 * nodes["revisit", 150]
+
+
+@pytest.mark.parametrize("window_m", [7.5, 12.0])
+def test_a_wide_window_searched_block_by_block_finds_what_every_cell_would(monkeypatch,
+                                                                          window_m):
+    """Branch and bound over blocks of coarse cells (wide windows) gives the very match,
+    score and ambiguity of the coarse pass over every cell."""
+    old, new = Pose2D(0.0, 0.0, 0.0), Pose2D(0.5, 0.3, math.radians(20))
+    field = likelihood_field(robot_points(old))
+    true = relative(old, new)
+    for dx, dy, dth in ((6.0, -5.0, 15.0), (-2.0, 1.0, -4.0), (0.3, 0.2, 1.0)):
+        guess = Pose2D(true.x + dx, true.y + dy, true.theta + math.radians(dth))
+        blocks = correlative_match(field, robot_points(new), guess, window_m, 20.0)
+        with monkeypatch.context() as m:
+            m.setattr("dynslam_cli.localization.loopmatch.BLOCK_MIN_CELLS", 10 ** 6)
+            every = correlative_match(field, robot_points(new), guess, window_m, 20.0)
+        assert blocks.pose == every.pose and blocks.score == every.score
+        assert np.array_equal(blocks.cov, every.cov) and blocks.censored == every.censored

@@ -54,6 +54,7 @@ class LikelihoodField:
     index: PointIndex
     seen: np.ndarray | None = None
     seen_coarse: np.ndarray | None = None
+    pooled: np.ndarray | None = None  # the coarse field pooled for wide windows (_Blocks)
 
 
 class View(NamedTuple):
@@ -151,17 +152,28 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
     n_ang = math.ceil(window_deg / ANGLE_STEP_DEG)
     dthetas = np.radians(np.arange(-n_ang, n_ang + 1) * ANGLE_STEP_DEG)
     base = np.array([guess.x, guess.y])
-    bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base, coarse_t,
-                     coarse_t)
+    t_m = coarse_t * FIELD_RES_M
+    preference = _preference(t_m[None, :], t_m[:, None], window_m)
+    blocks = None
+    if field.seen_coarse is None and len(coarse_t) >= BLOCK_MIN_CELLS:
+        blocks = _Blocks(field, pts, guess.theta + dthetas, base, coarse_t, preference)
+        bounds = blocks.top(TOP_COARSE)
+    else:
+        bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base,
+                         coarse_t, coarse_t)
     if field.seen_coarse is not None:  # (the fewest seen below a coarse cell: a bound)
         bounds /= _seen_share(_scores(field.seen_coarse, field.origin, pts,
                                       guess.theta + dthetas, base, coarse_t, coarse_t))
-    t_m = coarse_t * FIELD_RES_M
-    ranked = bounds * _preference(t_m[None, None, :], t_m[None, :, None], window_m)
+    ranked = bounds * preference[None]
+    if blocks is None:
+        order = best_first(ranked, TOP_COARSE)
+    else:  # (the cells scored hold the best; equal values still in index order)
+        cells = blocks.cells()
+        order = cells[best_first(ranked.ravel()[cells], TOP_COARSE)]
     fine_t = np.arange(-(COARSE_CELLS // 2), COARSE_CELLS // 2 + 1)
     sub_angles = np.radians(np.array([-0.5, 0.0, 0.5]) * ANGLE_STEP_DEG)
     best = (-1.0, 0.0, guess)  # (weighed score, score, pose)
-    for flat in best_first(ranked, TOP_COARSE):
+    for flat in order:
         a, r, c = np.unravel_index(int(flat), ranked.shape)
         if ranked[a, r, c] <= best[0]:
             break  # the coarse score bounds every fine score below it
@@ -180,7 +192,97 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
                     guess.x + tx[j] * FIELD_RES_M, guess.y + ty[i] * FIELD_RES_M,
                     guess.theta + th))
     _, score, pose = best
+    if blocks is not None:
+        bounds = blocks.above(AMBIGUITY_SHARE * score)
     return Match(pose, score, *_ambiguity(bounds, t_m, dthetas, score))
+
+
+BLOCK_CELLS = 4  # a wide window's first pass bounds 4 × 4 coarse cells of a heading at once
+BLOCK_MIN_CELLS = 48  # ... where the window is this many coarse cells across (7 m) or more
+BLOCK_REACH = (BLOCK_CELLS - 1) * COARSE_CELLS // 2  # a block's cells from its centre
+
+
+class _Blocks:
+    """A wide window's coarse bounds, found block by block where they matter (branch and
+    bound, Hess et al. 2016, one level above the coarse pass): the coarse field max-pooled
+    over a block's reach bounds the score of every coarse cell of the block at that heading,
+    so a block whose bound is below the cells already found is never scored cell by cell.
+    The cells scored are exactly the full pass's (the same sums), so the match is the
+    same; the others read −1."""
+
+    def __init__(self, field: LikelihoodField, pts: np.ndarray, thetas: np.ndarray,
+                 base: np.ndarray, coarse_t: np.ndarray, preference: np.ndarray) -> None:
+        n = len(coarse_t)
+        nb = math.ceil(n / BLOCK_CELLS)
+        starts = coarse_t[np.arange(nb) * BLOCK_CELLS]
+        pooled, origin = _pooled_coarse(field)
+        self.block_bounds = _scores(pooled, origin, pts, thetas, base,
+                                    starts + BLOCK_REACH, starts + BLOCK_REACH)
+        padded = np.zeros((nb * BLOCK_CELLS, nb * BLOCK_CELLS))
+        padded[:n, :n] = preference
+        best_preference = padded.reshape(nb, BLOCK_CELLS, nb, BLOCK_CELLS).max(axis=(1, 3))
+        self._ranked = self.block_bounds * best_preference[None]
+        self._order = best_first(self._ranked, self._ranked.size)
+        self._next = 0  # blocks before this in _order are scored
+        self._scored = np.zeros(self._ranked.shape, dtype=bool)
+        self.bounds = np.full((len(thetas), n, n), -1.0)
+        self._field, self._pts, self._thetas, self._base = field, pts, thetas, base
+        self._coarse_t, self._preference = coarse_t, preference
+
+    def _score(self, flat: int) -> None:
+        a, br, bc = np.unravel_index(flat, self._ranked.shape)
+        if self._scored[a, br, bc]:
+            return
+        self._scored[a, br, bc] = True
+        rows = slice(br * BLOCK_CELLS, (br + 1) * BLOCK_CELLS)
+        cols = slice(bc * BLOCK_CELLS, (bc + 1) * BLOCK_CELLS)
+        t = self._coarse_t
+        self.bounds[a, rows, cols] = _scores(self._field.coarse, self._field.origin,
+                                             self._pts, self._thetas[a:a + 1], self._base,
+                                             t[cols], t[rows])[0]
+
+    def top(self, k: int) -> np.ndarray:
+        """The bounds with at least every cell among the ``k`` best weighed by the
+        preference scored: blocks best first, until a block's weighed bound is below the
+        k-th best cell scored."""
+        found: list[float] = []  # the weighed bounds of the cells scored, best k
+        ranked = self._ranked.ravel()
+        while self._next < len(self._order):
+            flat = int(self._order[self._next])
+            if len(found) >= k and ranked[flat] < found[k - 1]:
+                break
+            self._score(flat)
+            self._next += 1
+            a, br, bc = np.unravel_index(flat, self._ranked.shape)
+            rows = slice(br * BLOCK_CELLS, (br + 1) * BLOCK_CELLS)
+            cols = slice(bc * BLOCK_CELLS, (bc + 1) * BLOCK_CELLS)
+            weighed = self.bounds[a, rows, cols] * self._preference[rows, cols]
+            found = sorted([*found, *weighed.ravel().tolist()], reverse=True)[:k]
+        return self.bounds
+
+    def cells(self) -> np.ndarray:
+        """The flat indices of the cells scored, in order."""
+        return np.flatnonzero(np.repeat(np.repeat(self._scored, BLOCK_CELLS, axis=1),
+                                        BLOCK_CELLS, axis=2)[:, :self.bounds.shape[1],
+                                                               :self.bounds.shape[2]])
+
+    def above(self, floor: float) -> np.ndarray:
+        """The bounds with every cell whose bound reaches ``floor`` scored."""
+        for flat in np.flatnonzero(self.block_bounds.ravel() >= floor):
+            self._score(int(flat))
+        return self.bounds
+
+
+def _pooled_coarse(field: LikelihoodField) -> tuple[np.ndarray, np.ndarray]:
+    """The coarse field's max over a block's reach (BLOCK_REACH cells each way), padded by
+    that reach so that a block whose centre lies off the field still bounds its cells on
+    it; and the padded grid's origin (made once per field)."""
+    if field.pooled is None:
+        from scipy.ndimage import maximum_filter
+
+        field.pooled = maximum_filter(np.pad(field.coarse, BLOCK_REACH),
+                                      size=2 * BLOCK_REACH + 1, mode="constant")
+    return field.pooled, field.origin - BLOCK_REACH * FIELD_RES_M
 
 
 def best_first(values: np.ndarray, k: int) -> np.ndarray:
