@@ -696,8 +696,14 @@ class LoopConfig:
     drift_per_m: float = 0.05
     """... plus this share of the graph distance between the two nodes (the driving between
     them, loop closures being shortcuts: see :meth:`BackEnd.graph_distance`) ..."""
-    max_search_radius_m: float = 6.0
-    """... up to this."""
+    max_search_radius_m: float = 30.0
+    """... up to this. 30 m rather than 6 (until stop 62): where the front end drifts
+    metres between two passes (outdoors, few walls in reach) a 6 m window never reaches
+    the place. Radish freiburg-campus with our moderate odometry (the front end 9 m and
+    1.5° off at its first return, 654 m driven) closes 209 loops instead of 4, ATE 24.8 ->
+    0.79 m (GMapping 1.25); the raw benchmark logs and the worlds are unchanged. A wide
+    window is searched block by block (:class:`loopmatch._Blocks`), 10 times faster than
+    cell by cell and with the same answer."""
     search_angle_deg: float = 10.0
     """Rotation window of the search (plus 1° per 10 m of graph distance)."""
     max_search_angle_deg: float = 30.0

@@ -444,6 +444,28 @@ def test_a_place_revisited_for_hours_does_not_grow_the_graph(cli, tmp_path):
     assert nodes["revisit", 300] < 1.1 * nodes["revisit", 150]
 
 
+def test_a_loop_drifted_past_the_old_fixed_radius_is_found():
+    """After 160 m driven between two nodes the graph may have them metres apart: the
+    window grows with that drift (``search_radius_m`` plus ``drift_per_m`` of the graph
+    distance) past the 6 m it was once held to, and the place 8.6 m and 15° from where
+    the graph has it is found; a window held to 6 m does not reach it."""
+    old, new = Pose2D(0.0, 0.0, 0.0), Pose2D(0.5, 0.3, math.radians(20))
+    field = likelihood_field(robot_points(old))
+    true = relative(old, new)
+    guess = Pose2D(true.x + 7.0, true.y - 5.0, true.theta + math.radians(15))
+    wide = BackEnd(LoopConfig(), NoiseModel())
+    held = BackEnd(LoopConfig(max_search_radius_m=6.0), NoiseModel())
+    assert float(held.radius(160.0)) == 6.0 and float(wide.radius(160.0)) > 8.0
+    found = wide._match(lambda: field, robot_points(new), guess, float(wide.radius(160.0)),
+                        20.0)
+    assert found is not None
+    pose, _, _ = found
+    assert math.hypot(pose.x - true.x, pose.y - true.y) < 0.05
+    assert abs(pose.theta - true.theta) < math.radians(0.5)
+    missed = held._match(lambda: field, robot_points(new), guess, 6.0, 20.0)
+    assert missed is None or math.hypot(missed[0].x - true.x, missed[0].y - true.y) > 1.0
+
+
 @pytest.mark.parametrize("window_m", [7.5, 12.0])
 def test_a_wide_window_searched_block_by_block_finds_what_every_cell_would(monkeypatch,
                                                                           window_m):
