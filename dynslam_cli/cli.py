@@ -544,7 +544,8 @@ def config_command(config_file: Path | None) -> None:
 
 
 @main.command()
-@click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd", "office"]))
+@click.argument("world", type=click.Choice(["corridors", "arena", "hall", "crowd", "office",
+                                            "wards"]))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Folder to write <world>.log and truth.json into.")
 @click.option("--duration", type=click.FloatRange(min=1), default=600, show_default=True,
@@ -591,6 +592,7 @@ def simulate(world: str, output: Path, duration: float, rate: float, seed: int,
       hall       19 m × 11 m hall, 2-10 walking robots, boxes moved out of view
       crowd      14 m × 10 m open space, three people walking round the robot
       office     50 m corridor into a 24 m hall: few corners (hard); a box moved
+      wards      corridor ring with a door every 4 m: look-alike places (hard)
 
     \b
     Examples:

@@ -28,7 +28,7 @@ from dynslam_cli.geometry import (
 )
 from dynslam_cli.types import Pose2D
 
-WORLD_NAMES = ("corridors", "arena", "hall", "crowd", "office")
+WORLD_NAMES = ("corridors", "arena", "hall", "crowd", "office", "wards")
 SEEN_BEFORE_MOVE = 10  # scans that must hit a box at its place before it is moved again
 
 # Fixtures: furniture that stands still through a session and may be moved between sessions
@@ -243,6 +243,25 @@ def build_world(name: str, seed: int = 0, walkers: int | None = None) -> World:
                  (56.0, 7.0), (48.0, 0.0)]
         return World(name, np.array(walls, float), route, Pose2D(2.0, 0.0, 0.0),
                      boxes=boxes, relocations=6, speed=0.8)
+    if name == "wards":
+        # Hard on purpose: look-alike corridors. A ring of 3 m corridors round a 34 m × 8 m
+        # block, with a 1 m door recess every 4 m along both long outer walls: any stretch
+        # of a long corridor looks like the stretch 4 m on, and like the other long
+        # corridor turned round (the ring is the same after a half turn). Boxes stand by
+        # the block's wall, 0.25 m from it, and are moved while the robot is elsewhere.
+        walls = [[0, 0, 0, 14], [40, 0, 40, 14], *_rect(3, 3, 37, 11)]
+        doors = np.arange(4.0, 37.0, 4.0)
+        for y, d in ((0.0, -0.5), (14.0, 0.5)):
+            xs = [0.0] + [v for x in doors for v in (x - 0.5, x + 0.5)] + [40.0]
+            walls += [[xs[i], y, xs[i + 1], y] for i in range(0, len(xs), 2)]
+            for x in doors:
+                walls += [[x - 0.5, y, x - 0.5, y + d], [x - 0.5, y + d, x + 0.5, y + d],
+                          [x + 0.5, y + d, x + 0.5, y]]
+        boxes = [Box("box0", 0.3, 0.2, [(10.0, 2.55), (26.0, 11.45), (30.0, 2.55)]),
+                 Box("box1", 0.3, 0.2, [(22.0, 2.55), (14.0, 11.45), (34.0, 11.45)])]
+        route = [(1.5, 1.5), (38.5, 1.5), (38.5, 12.5), (1.5, 12.5)]
+        return World(name, np.array(walls, float), route, Pose2D(1.5, 7.0, -math.pi / 2),
+                     boxes=boxes, relocations=12, speed=0.8)
     raise ValueError(f"unknown world {name!r}; built-in: {', '.join(WORLD_NAMES)}")
 
 
