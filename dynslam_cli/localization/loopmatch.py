@@ -54,7 +54,6 @@ class LikelihoodField:
     index: PointIndex
     seen: np.ndarray | None = None
     seen_coarse: np.ndarray | None = None
-    pooled: np.ndarray | None = None  # the coarse field pooled for wide windows (_Blocks)
 
 
 class View(NamedTuple):
@@ -276,13 +275,13 @@ class _Blocks:
 def _pooled_coarse(field: LikelihoodField) -> tuple[np.ndarray, np.ndarray]:
     """The coarse field's max over a block's reach (BLOCK_REACH cells each way), padded by
     that reach so that a block whose centre lies off the field still bounds its cells on
-    it; and the padded grid's origin (made once per field)."""
-    if field.pooled is None:
-        from scipy.ndimage import maximum_filter
+    it; and the padded grid's origin. Made for each wide search, not kept with the field:
+    kept, it took freiburg-campus moderate from 270 to 325 MB at the same speed."""
+    from scipy.ndimage import maximum_filter
 
-        field.pooled = maximum_filter(np.pad(field.coarse, BLOCK_REACH),
-                                      size=2 * BLOCK_REACH + 1, mode="constant")
-    return field.pooled, field.origin - BLOCK_REACH * FIELD_RES_M
+    pooled = maximum_filter(np.pad(field.coarse, BLOCK_REACH), size=2 * BLOCK_REACH + 1,
+                            mode="constant")
+    return pooled, field.origin - BLOCK_REACH * FIELD_RES_M
 
 
 def best_first(values: np.ndarray, k: int) -> np.ndarray:
