@@ -406,6 +406,9 @@ class Interlaced(ReaderFilter):
                 delay = 0.0
             else:
                 self.stats.warn(INTERLACED.format(1000 * delay))
+        if delay == 0.0:
+            yield from replayed(probe, error, scans)
+            return
         before: Scan | None = None
         for scan in replayed(probe, error, scans):
             yield self._deskewed(scan, turn_rate(scan, before) * delay)

@@ -223,22 +223,25 @@ class _Blocks:
         self._ranked = self.block_bounds * best_preference[None]
         self._order = best_first(self._ranked, self._ranked.size)
         self._next = 0  # blocks before this in _order are scored
-        self._scored = np.zeros(self._ranked.shape, dtype=bool)
-        self.bounds = np.full((len(thetas), n, n), -1.0)
+        self.bounds = np.full((len(thetas), n, n), -1.0)  # (−1: not scored)
         self._field, self._pts, self._thetas, self._base = field, pts, thetas, base
         self._coarse_t, self._preference = coarse_t, preference
 
-    def _score(self, flat: int) -> None:
+    def _cells(self, flat: int) -> tuple[int, slice, slice]:
+        """Block ``flat``'s heading and its coarse cells' rows and columns."""
         a, br, bc = np.unravel_index(flat, self._ranked.shape)
-        if self._scored[a, br, bc]:
-            return
-        self._scored[a, br, bc] = True
-        rows = slice(br * BLOCK_CELLS, (br + 1) * BLOCK_CELLS)
-        cols = slice(bc * BLOCK_CELLS, (bc + 1) * BLOCK_CELLS)
-        t = self._coarse_t
-        self.bounds[a, rows, cols] = _scores(self._field.coarse, self._field.origin,
-                                             self._pts, self._thetas[a:a + 1], self._base,
-                                             t[cols], t[rows])[0]
+        return (int(a), slice(br * BLOCK_CELLS, (br + 1) * BLOCK_CELLS),
+                slice(bc * BLOCK_CELLS, (bc + 1) * BLOCK_CELLS))
+
+    def _score(self, flat: int) -> tuple[int, slice, slice]:
+        """Block ``flat``'s cells scored (once); its heading, rows and columns."""
+        a, rows, cols = block = self._cells(flat)
+        if self.bounds[a, rows, cols][0, 0] < 0:  # (a score is never below 0)
+            t = self._coarse_t
+            self.bounds[a, rows, cols] = _scores(self._field.coarse, self._field.origin,
+                                                 self._pts, self._thetas[a:a + 1],
+                                                 self._base, t[cols], t[rows])[0]
+        return block
 
     def top(self, k: int) -> np.ndarray:
         """The bounds with at least every cell among the ``k`` best weighed by the
@@ -250,20 +253,15 @@ class _Blocks:
             flat = int(self._order[self._next])
             if len(found) >= k and ranked[flat] < found[k - 1]:
                 break
-            self._score(flat)
+            a, rows, cols = self._score(flat)
             self._next += 1
-            a, br, bc = np.unravel_index(flat, self._ranked.shape)
-            rows = slice(br * BLOCK_CELLS, (br + 1) * BLOCK_CELLS)
-            cols = slice(bc * BLOCK_CELLS, (bc + 1) * BLOCK_CELLS)
             weighed = self.bounds[a, rows, cols] * self._preference[rows, cols]
             found = sorted([*found, *weighed.ravel().tolist()], reverse=True)[:k]
         return self.bounds
 
     def cells(self) -> np.ndarray:
         """The flat indices of the cells scored, in order."""
-        return np.flatnonzero(np.repeat(np.repeat(self._scored, BLOCK_CELLS, axis=1),
-                                        BLOCK_CELLS, axis=2)[:, :self.bounds.shape[1],
-                                                               :self.bounds.shape[2]])
+        return np.flatnonzero(self.bounds.ravel() >= 0)
 
     def above(self, floor: float) -> np.ndarray:
         """The bounds with every cell whose bound reaches ``floor`` scored."""
