@@ -372,6 +372,11 @@ class CorrelativeConfig:
     (geometric mean of the ATE ratios to ICP 1.49 against 1.07 without; csail 2.7 m at
     every level): a SLAM-corrected "perfect" odometry jumps where its own loops closed,
     and a model learned from the smooth stretches trusts it there too."""
+    learned_scale_in: str = "search"
+    """With ``learn_odometry``, where the learned scale applies: "search", the search's
+    window and prior, its slip tests and the fusion; "fusion", the fusion of a match that
+    agrees with the odometry alone, while the window and the slip tests take the noise as
+    stated (a scale learned where the odometry agreed says nothing of where it slips)."""
     calibrate_odometry: bool = True
     """Learn the odometry's systematic errors from the matches (OdometryCalibration: a
     scale of its translation, with ``calibrate_rotation`` of its rotation and a heading
@@ -503,6 +508,8 @@ class CorrelativeConfig:
              'match.correlative.slip_test must be "refined" or "search"'),
             (self.fusion in ("step", "filter"),
              'match.correlative.fusion must be "step" or "filter"'),
+            (self.learned_scale_in in ("search", "fusion"),
+             'match.correlative.learned_scale_in must be "search" or "fusion"'),
         ])
 
 

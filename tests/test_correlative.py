@@ -667,3 +667,24 @@ def test_a_millimetre_moves_the_mean_thinned_local_map_by_less_than_a_centimetre
     assert np.abs(means[:, 1] - 0.3).max() < 0.03  # on the wall, as its points
     first, _ = cKDTree(wall[thin(wall, 0.05)]).query(moved[thin(moved, 0.05)])
     assert first.max() > 0.02
+
+
+@pytest.mark.parametrize("learned_scale_in", ["search", "fusion"])
+def test_a_learned_trust_in_a_perfect_odometry_still_lets_a_slip_through(learned_scale_in):
+    """Thirty scans with perfect odometry teach the matcher to trust it (``learn_odometry``)
+    far beyond its stated noise; the odometry then slips 15° (a wheel spun in a turn), where
+    the scan fits well: the slip is followed, not the odometry that learned trust earned."""
+    from .test_loopclosure import scan_at
+
+    cfg = MatchConfig(correlative=CorrelativeConfig(learn_odometry=True,
+                                                    learned_scale_in=learned_scale_in))
+    matcher = ScanMatcher(cfg, NoiseModel())
+    estimate = Pose2D()
+    for k in range(40):
+        true = Pose2D(0.05 * k, 0.02 * k, math.radians(1.0 * k))
+        odom = Pose2D(true.x, true.y, true.theta + (math.radians(15.0) if k >= 30 else 0.0))
+        inc, _, _ = matcher.increment(scan_at(true, odom, 0.1 * k))
+        estimate = compose(estimate, inc)
+        err = relative(true, estimate)
+        assert math.hypot(err.x, err.y) < 0.03 and abs(err.theta) < math.radians(0.5), k
+    assert matcher._odometry.scale[1] < 0.5  # (trusted more than stated when it slipped)

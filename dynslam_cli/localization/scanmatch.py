@@ -519,16 +519,16 @@ class ScanMatcher:
         cfg = self.cfg
         if len(pts) < MIN_POINTS:
             return Placed(guess, "fallback")
-        st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
+        window = self._search_sigma(wheel)
         field = self._map.field()
         voxel = cfg.correlative.voxel_m
         searched = pts[thin(pts, voxel)] if voxel > 0 else pts
-        post = search(field, searched, guess, (st, st, sr), cfg.correlative, cfg.min_inliers)
+        post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers)
         source = "matched"
-        agrees = not _outside(post.pose, guess, (st, st, sr), cfg.correlative.window_sigmas)
+        agrees = not _outside(post.pose, guess, window, cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers or not agrees or (cfg.confirm_jumps
                                                           and self._jumped()):
-            for retry_guess, sigma, is_anchored in self._retry_guesses(odom, (st, st, sr)):
+            for retry_guess, sigma, is_anchored in self._retry_guesses(odom, window):
                 retry = search(field, searched, retry_guess, sigma, cfg.correlative,
                                cfg.min_inliers)
                 if retry.score > post.score:
@@ -548,6 +548,7 @@ class ScanMatcher:
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return Placed(post.pose, source, post.cov, agrees)
         self.fit_rms = refined.rms
+        st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         slipped_only_if_searched = agrees and cfg.correlative.slip_test == "search"
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
                             None if slipped_only_if_searched
@@ -557,6 +558,16 @@ class ScanMatcher:
             return Placed(fused[0], source, fused[1], agrees, refined.pose)
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
+
+    def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
+        """The standard deviations (x, y, θ) of a wheel increment that the search's window
+        and prior and its slip test take: scaled as learned (``OdometryScale``), or as
+        stated where the learned scale is for the fusion alone (``learned_scale_in``)."""
+        correlative = self.cfg.correlative
+        st, sr = (motion_std(wheel.x, wheel.y, wheel.theta, correlative.odometry)
+                  if correlative.learned_scale_in == "fusion"
+                  else self._odometry.std(wheel, correlative.odometry))
+        return st, st, sr
 
     def _jumped(self) -> bool:
         """Whether the scan before was placed against its wheel odometry."""
@@ -575,8 +586,7 @@ class ScanMatcher:
         if self._jumped():
             anchor_pose, anchor_odom = self._anchor
             since = relative(anchor_odom, odom)
-            st, sr = self._odometry.std(since, self.cfg.correlative.odometry)
-            guesses.append((compose(anchor_pose, since), (st, st, sr), True))
+            guesses.append((compose(anchor_pose, since), self._search_sigma(since), True))
         return guesses
 
     def _good(self, match: IcpResult, pts: np.ndarray, start: Pose2D,
