@@ -371,7 +371,8 @@ class CorrelativeConfig:
     arena 0.004 against 0.110, 0.048, 0.036, 0.015, 0.006 without), but on the Radish logs it loses
     (geometric mean of the ATE ratios to ICP 1.49 against 1.07 without; csail 2.7 m at
     every level): a SLAM-corrected "perfect" odometry jumps where its own loops closed,
-    and a model learned from the smooth stretches trusts it there too."""
+    and a model learned from the smooth stretches trusts it there too. Measured again at
+    ecc2fb8, with ``learned_scale_in`` either way: ``bench/configs/learn_odometry.toml``."""
     learned_scale_in: str = "search"
     """With ``learn_odometry``, where the learned scale applies: "search", the search's
     window and prior, its slip tests and the fusion; "fusion", the fusion of a match that

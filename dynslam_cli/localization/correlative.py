@@ -313,18 +313,20 @@ def angle_step(points: np.ndarray, resolution: float) -> float:
 
 
 def search(field: LogField, pts: np.ndarray, guess: Pose2D, prior_sigma: tuple[float, ...],
-           cfg: CorrelativeConfig, min_score: float = 0.0) -> Posterior:
+           cfg: CorrelativeConfig, min_score: float = 0.0, max_turn: float = math.inf
+           ) -> Posterior:
     """The posterior of the pose of ``pts``' frame in the field's frame, over a window of
     ``cfg.window_sigmas`` prior standard deviations around ``guess`` (the odometry's pose,
     with ``prior_sigma`` = its x, y, θ standard deviations). Where the best pose lies on
     the window's edge (the odometry slipped or glitched), the window is searched again
     WIDEN times as wide in that direction (translation or rotation), up to the largest
-    window; and in both where it scores below ``min_score`` (nothing in the window
-    explains the scan)."""
+    window (in rotation: and at most ``max_turn`` radians either way); and in both where
+    it scores below ``min_score`` (nothing in the window explains the scan)."""
     sigma = tuple(max(float(s), 1e-9) for s in prior_sigma)
+    widest_th = min(math.radians(cfg.max_window_deg), max_turn)
     half_m = min(max(cfg.window_sigmas * max(sigma[:2]), cfg.min_window_m), cfg.max_window_m)
     half_th = min(max(cfg.window_sigmas * sigma[2], math.radians(cfg.min_window_deg)),
-                  math.radians(cfg.max_window_deg))
+                  widest_th)
     step = angle_step(pts, field.resolution)
     while True:
         post, edge_m, edge_th = _window_posterior(field, pts, guess, sigma, half_m, half_th,
@@ -332,7 +334,7 @@ def search(field: LogField, pts: np.ndarray, guess: Pose2D, prior_sigma: tuple[f
         lost = post.score < min_score
         edge_m, edge_th = edge_m or lost, edge_th or lost
         wider = (min(half_m * WIDEN, cfg.max_window_m) if edge_m else half_m,
-                 min(half_th * WIDEN, math.radians(cfg.max_window_deg)) if edge_th else half_th)
+                 min(half_th * WIDEN, widest_th) if edge_th else half_th)
         if wider == (half_m, half_th):
             return post
         half_m, half_th = wider

@@ -523,15 +523,16 @@ class ScanMatcher:
         field = self._map.field()
         voxel = cfg.correlative.voxel_m
         searched = pts[thin(pts, voxel)] if voxel > 0 else pts
-        post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers)
+        turn = self._widest_turn(wheel)
+        post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers, turn)
         source = "matched"
         agrees = not _outside(post.pose, guess, window, cfg.correlative.window_sigmas)
         if post.score < cfg.min_inliers or not agrees or (cfg.confirm_jumps
                                                           and self._jumped()):
             for retry_guess, sigma, is_anchored in self._retry_guesses(odom, window):
                 retry = search(field, searched, retry_guess, sigma, cfg.correlative,
-                               cfg.min_inliers)
-                if retry.score > post.score:
+                               cfg.min_inliers, turn)
+                if retry.score > post.score and self._plausible_turn(retry.pose, guess, wheel):
                     post, source = retry, "recovered"
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
@@ -598,12 +599,18 @@ class ScanMatcher:
                                                           math.tau))
                 <= MAX_TURN_SIGMAS * sigma[2])
 
+    @staticmethod
+    def _widest_turn(wheel: Pose2D) -> float:
+        """How far (radians) a match may turn from the odometry's guess: as far as the
+        odometry turned (a doubled or a missed turn) plus the widest turn retried, not by
+        the 90° that fits a corridor's walls to a hall's."""
+        return abs(wheel.theta) + math.radians(max(RECOVERY_TURNS_DEG))
+
     def _plausible_turn(self, pose: Pose2D, guess: Pose2D, wheel: Pose2D) -> bool:
-        """A recovered turn may differ from the odometry's by no more than the odometry
-        turned (a doubled or a missed turn) plus the widest turn retried: not by the 90°
-        that fits a corridor's walls to a hall's."""
+        """Whether a recovered turn differs from the odometry's by at most
+        :meth:`_widest_turn`."""
         return (abs(math.remainder(pose.theta - guess.theta, math.tau))
-                <= abs(wheel.theta) + math.radians(max(RECOVERY_TURNS_DEG)))
+                <= self._widest_turn(wheel))
 
     def _recover(self, reference: PointIndex, pts: np.ndarray,
                  guess: Pose2D, wheel: Pose2D, sigma: Sequence[float]) -> IcpResult | None:
