@@ -515,7 +515,8 @@ class ScanMatcher:
         Where too few end points land on the local map's walls, or the best pose lies
         beyond the odometry's window, the search is run again around each of
         :meth:`_retry_guesses`, and the best-scoring wins ("recovered" if it is not the
-        first); nothing good: the odometry."""
+        first); nothing good: the odometry. No match turns further from the odometry's
+        guess than :meth:`_widest_turn`."""
         cfg = self.cfg
         if len(pts) < MIN_POINTS:
             return Placed(guess, "fallback")
