@@ -488,12 +488,12 @@ class CorrelativeConfig:
     0.0727 -> 0.0638, Intel 0.0795 -> 0.1199, FR079 0.0878 -> 0.0836, Intel bag 0.1105 ->
     0.1283, FR079 bag 0.0895 -> 0.0865; the office with true odometry stated exact
     (bench/configs/exact_odometry.toml, seeds 0-2) 0.0315 / 0.0476 / 0.0360 -> 0.0255 /
-    0.0254 / 0.0650 m. Measured again at a25fc0e (the local map of means), one run each, off -> on:
-    relations local / full MIT 0.0384 / 0.0266 -> 0.0306 / 0.0269, Intel 0.0908 / 0.0138 ->
-    0.0778 / 0.0140, FR079 0.0724 / 0.0650 -> 0.0763 / 0.0649, Intel bag 0.0645 / 0.0142 ->
-    0.0738 / 0.0147, FR079 bag 0.0763 / 0.0621 -> 0.0735 / 0.0626; the office with true
-    odometry, pose graph on, 0.0801 / 0.0607 / 0.0457 -> 0.0746 / 0.0581 / 0.0710 (its slide
-    at scan 643 stays); Radish (seed 0) geometric mean of the 39 ATE ratios 1.079, fhw
+    0.0254 / 0.0650 m. Measured again at a25fc0e (the local map of means), one run each,
+    off -> on: relations local / full MIT 0.0384 / 0.0266 -> 0.0306 / 0.0269, Intel 0.0908 /
+    0.0138 -> 0.0778 / 0.0140, FR079 0.0724 / 0.0650 -> 0.0763 / 0.0649, Intel bag 0.0645 /
+    0.0142 -> 0.0738 / 0.0147, FR079 bag 0.0763 / 0.0621 -> 0.0735 / 0.0626; the office with
+    true odometry, pose graph on, 0.0801 / 0.0607 / 0.0457 -> 0.0746 / 0.0581 / 0.0710 (its
+    slide at scan 643 stays); Radish (seed 0) geometric mean of the 39 ATE ratios 1.079, fhw
     perfect 0.152 -> 7.68 m."""
     voxel_m: float = 0.0
     """The scan's end points searched are one per square of this side (the first in beam
