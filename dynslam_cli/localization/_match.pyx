@@ -19,14 +19,17 @@ ctypedef unsigned char u8
 MAX_BUCKETS_PER_SIDE = 1024
 cdef enum:
     MAX_NEIGHBOURS = 64  # a normal's points, at most
+    MIN_NORMAL_POINTS = 3  # ... and at least (fewer: no normal)
 
 
 cdef class PointIndex:
     """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
     bound (fastest when the bound is about the cell size: 3×3 buckets are searched); and
-    each point's normal from its ``neighbours`` nearest (at most 64), computed when first
-    asked for (ICP asks for those of the points it pairs with: a few hundred of a local
-    map's thousands) and kept."""
+    each point's normal from its ``neighbours`` nearest (at most 64) within ``radius``,
+    computed when first asked for (ICP asks for those of the points it pairs with: a few
+    hundred of a local map's thousands) and kept. A point with fewer than MIN_NORMAL_POINTS
+    within ``radius`` (itself included: a lone point, an end point of a short stub seen from
+    afar) has no surface to be a line of: its normal is (0, 0)."""
 
     cdef readonly object points
     cdef const double[:, ::1] pts
@@ -36,10 +39,12 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] order
     cdef const double[:, ::1] by_bucket  # the points in bucket order: read in sequence
     cdef Py_ssize_t neighbours
+    cdef double radius2
     cdef double[:, ::1] nrm  # each point's normal, where ...
     cdef u8[::1] has_nrm  # ... computed
 
-    def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6):
+    def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6,
+                 double radius=INFINITY):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
@@ -47,6 +52,7 @@ cdef class PointIndex:
         if not 1 <= neighbours <= MAX_NEIGHBOURS:
             raise ValueError(f"neighbours must be 1-{MAX_NEIGHBOURS}, not {neighbours}")
         self.neighbours = min(neighbours, n)
+        self.radius2 = radius * radius
         self.nrm = np.zeros((n, 2))
         self.has_nrm = np.zeros(n, dtype=np.uint8)
         if n == 0:
@@ -138,14 +144,21 @@ cdef class PointIndex:
 
     cdef void _normal(self, Py_ssize_t i) noexcept nogil:
         """Point i's unit normal into nrm[i], unless it is there: the direction of least
-        spread of its ``neighbours`` nearest points (itself included)."""
+        spread of its ``neighbours`` nearest points within the radius (itself included);
+        (0, 0) where they are fewer than MIN_NORMAL_POINTS."""
         if self.has_nrm[i]:
             return
         cdef Py_ssize_t iv[MAX_NEIGHBOURS]
         cdef double dv[MAX_NEIGHBOURS]
-        cdef Py_ssize_t m, kk = self.neighbours
+        cdef Py_ssize_t m, kk
         cdef double mx, my, sxx, syy, sxy, dx, dy, a
-        self._search(self.pts[i, 0], self.pts[i, 1], kk, INFINITY, iv, dv)
+        self.has_nrm[i] = 1
+        kk = self._search(self.pts[i, 0], self.pts[i, 1], self.neighbours,
+                          self.radius2, iv, dv)
+        if kk < MIN_NORMAL_POINTS:
+            self.nrm[i, 0] = 0.0
+            self.nrm[i, 1] = 0.0
+            return
         mx = my = 0.0
         for m in range(kk):
             mx += self.pts[iv[m], 0]
@@ -162,7 +175,6 @@ cdef class PointIndex:
         a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
         self.nrm[i, 0] = cos(a)
         self.nrm[i, 1] = sin(a)
-        self.has_nrm[i] = 1
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""
@@ -256,10 +268,12 @@ cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
             j = index.nearest(px, py, gate)
             if j < 0:
                 continue
-            used += 1
             index._normal(j)
             nx = index.nrm[j, 0]
             ny = index.nrm[j, 1]
+            if nx == 0.0 and ny == 0.0:  # (a point on no line: no pair)
+                continue
+            used += 1
             r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
             dpx = -s * pts[i, 0] - c * pts[i, 1]
             dpy = c * pts[i, 0] - s * pts[i, 1]
