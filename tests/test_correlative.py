@@ -13,8 +13,12 @@ import pytest
 from dynslam_cli.geometry import compose, relative, transform_points
 from dynslam_cli.localization.correlative import (
     CorrelativeConfig,
+    View,
     log_field,
+    reach_cells,
+    sampled_walls,
     search,
+    seen_cells,
     with_points,
 )
 from dynslam_cli.localization.ekf import NoiseModel
@@ -705,3 +709,61 @@ def test_a_match_never_turns_further_from_the_odometry_than_a_glitch_could():
     capped = search(field, pts, old, (0.02, 0.02, math.radians(2.0)), CFG, 0.5,
                     max_turn=math.radians(35.0))
     assert abs(capped.pose.theta) <= math.radians(35.0)
+
+
+def _wall_points(pose: Pose2D, reach: float = 4.0) -> np.ndarray:
+    """The end points (robot frame) of a 180° scan from ``pose`` of one long wall, y = 1."""
+    wall = np.array([[-30.0, 1.0, 30.0, 1.0]])
+    r, _ = ray_cast(pose, ANGLES, wall, np.zeros(1, int), np.zeros((0, 3)), np.zeros(0, int),
+                    reach)
+    return scan_points(Scan(0.0, r, ANGLES, reach, pose), reach)
+
+
+def test_end_points_where_the_local_map_never_looked_do_not_pull_the_match_back():
+    """A key scan saw a wall 4 m either way; a metre on, the scan sees a metre more of it
+    ahead. Along a plain wall only the odometry says where the robot is; scoring every end
+    point, the search slides back to lay the new metre on the wall it knows (25 cm under a
+    30 cm prior); scoring those the key scan looked at (``seen_only``), it stays."""
+    facing = math.pi / 2
+    key = transform_points(Pose2D(0.0, 0.0, facing), _wall_points(Pose2D(0.0, 0.0, facing)))
+    moved = Pose2D(1.0, 0.0, facing)
+    pts = _wall_points(moved)
+    prior = (0.3, 0.3, math.radians(1.0))
+    along = {}
+    for seen_only in (False, True):
+        cfg = CorrelativeConfig(seen_only=seen_only)
+        field = log_field(sampled_walls(key, cfg.resolution_m / 2), cfg)
+        if seen_only:
+            field.seen = seen_cells([View(np.zeros(2), key)], field.origin, field.grid.shape,
+                                    cfg.resolution_m, reach_cells(cfg))
+        post = search(field, pts, moved, prior, cfg)
+        assert abs(post.pose.y) < 0.01 and abs(post.pose.theta - facing) < math.radians(0.1)
+        along[seen_only] = post.pose.x - moved.x
+    assert along[False] < -0.1
+    assert abs(along[True]) < 0.02
+
+
+def test_the_local_map_marks_where_its_key_scans_looked():
+    """With ``seen_only`` the local map's table knows its key scans' fans (from the laser
+    through the end points), a new key scan's added to it; without, it scores them all."""
+    from dynslam_cli.localization.scanmatch import LocalMap
+
+    facing = math.pi / 2
+    local = LocalMap(MatchConfig(correlative=CorrelativeConfig(seen_only=True)))
+    local.add(Pose2D(0.0, 0.0, facing), _wall_points(Pose2D(0.0, 0.0, facing)))
+    field = local.field()
+    assert field.seen is not None and field.seen.shape == field.grid.shape
+
+    def looked(x: float, y: float) -> bool:  # (off the table: never looked at)
+        c, r = np.rint((np.array([x, y]) - field.origin) / field.resolution).astype(int)
+        rows, cols = field.seen.shape
+        return bool(0 <= r < rows and 0 <= c < cols and field.seen[r, c])
+
+    assert looked(0.0, 0.9) and looked(3.0, 1.0) and looked(-3.0, 1.1)
+    assert not looked(4.5, 1.0)  # (beyond the fan and a wall's reach: its end is at 3.87)
+    local.add(Pose2D(1.0, 0.0, facing), _wall_points(Pose2D(1.0, 0.0, facing)))
+    field = local.field()
+    assert looked(4.5, 1.0) and looked(-3.0, 1.1)
+    plain = LocalMap(MatchConfig())
+    plain.add(Pose2D(0.0, 0.0, facing), _wall_points(Pose2D(0.0, 0.0, facing)))
+    assert plain.field().seen is None  # (the default: every end point scored)

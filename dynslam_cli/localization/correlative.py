@@ -210,6 +210,63 @@ def scan_share(cov: np.ndarray, wheel: Pose2D, sigma: tuple[float, float]) -> tu
             min(max(1.0 - float(cov[2, 2]) / max(sigma[1], 1e-9) ** 2, 0.0), 1.0))
 
 
+class View(NamedTuple):
+    """One scan of a submap: the laser's position and its end points in beam order (N×2),
+    in the submap's frame."""
+
+    origin: np.ndarray
+    points: np.ndarray
+
+
+def seen_cells(views: list[View], origin: np.ndarray, shape: tuple[int, int], res: float,
+               reach_cells: int) -> np.ndarray:
+    """1.0 on the cells of a grid (cell (0, 0) centred on ``origin``, side ``res``) that a
+    view looked at: inside the fan from its laser through its end points, and within
+    ``reach_cells`` of those cells (as far as a wall's likelihood spreads); else 0. A beam
+    with no return is left out of the fan: what it passed through counts as unseen."""
+    seen = np.zeros(shape)
+    mark_seen(seen, views, origin, res, reach_cells)
+    return seen
+
+
+def mark_seen(seen: np.ndarray, views: list[View], origin: np.ndarray, res: float,
+              reach_cells: int) -> None:
+    """Sets the cells of ``seen`` (:func:`seen_cells`' grid) that ``views`` looked at to
+    1, drawing and widening the fans over their own bounds alone."""
+    from PIL import Image, ImageDraw
+    from scipy.ndimage import maximum_filter
+
+    fans = [(np.vstack([v.origin[None, :], v.points]) - origin) / res + 0.5
+            for v in views if len(v.points) >= 2]  # (a cell's centre: the pixel's)
+    if not fans:
+        return
+    every = np.vstack(fans)
+    lo = np.floor(every.min(axis=0)).astype(int) - reach_cells - 1  # (x, y) pixels
+    hi = np.ceil(every.max(axis=0)).astype(int) + reach_cells + 1
+    image = Image.new("L", tuple(int(v) for v in hi - lo), 0)
+    draw = ImageDraw.Draw(image)
+    for fan in fans:
+        draw.polygon([tuple(p) for p in (fan - lo).tolist()], fill=1, outline=1)
+    box = maximum_filter(np.asarray(image, dtype=np.float64), size=2 * reach_cells + 1,
+                         mode="constant")
+    rows, cols = seen.shape
+    r0, c0 = max(lo[1], 0), max(lo[0], 0)
+    r1, c1 = min(hi[1], rows), min(hi[0], cols)
+    if r0 < r1 and c0 < c1:
+        window = seen[r0:r1, c0:c1]
+        np.maximum(window, box[r0 - lo[1]:r1 - lo[1], c0 - lo[0]:c1 - lo[0]], out=window)
+
+
+MIN_SEEN_SHARE = 0.5  # a pose's score is over at least this share of the points
+
+
+def seen_share(share: np.ndarray) -> np.ndarray:
+    """The share of a pose's points scored, where the field knows where its submap
+    looked: those on cells it saw, never less than MIN_SEEN_SHARE (a pose that puts most
+    points where the submap never looked scores as if they were misses)."""
+    return np.maximum(share, MIN_SEEN_SHARE)
+
+
 class Posterior(NamedTuple):
     """The search's best pose, the covariance (x, y, θ) of the posterior over the window
     around it, and the best pose's share of end points that landed on the submap's walls
@@ -230,6 +287,9 @@ class LogField:
     origin: np.ndarray
     resolution: float
     peak: float  # the value on a wall: a score's 1
+    seen: np.ndarray | None = None
+    """Where the submap's scans looked (:func:`seen_cells`, the grid's shape), where the
+    search scores only the end points landing there; None: every end point."""
 
 
 def log_field(points: np.ndarray, cfg: CorrelativeConfig) -> LogField:
@@ -243,7 +303,7 @@ def with_points(field: LogField | None, points: np.ndarray, cfg: CorrelativeConf
     as a table made of all the points at once, on a grid grown (with GROW_SLACK_M to spare
     on every side) where the points reach beyond it."""
     res, eps = cfg.resolution_m, cfg.outlier_share
-    reach = max(1, math.ceil(4.0 * cfg.field_sigma_m / res))
+    reach = reach_cells(cfg)
     margin = (reach + 1) * res
     lo, hi = points.min(axis=0) - margin, points.max(axis=0) + margin
     if field is None:
@@ -264,6 +324,11 @@ def with_points(field: LogField | None, points: np.ndarray, cfg: CorrelativeConf
 
 
 GROW_SLACK_M = 3.0
+
+
+def reach_cells(cfg: CorrelativeConfig) -> int:
+    """How many cells from a wall its likelihood reaches (4 ``field_sigma_m``)."""
+    return max(1, math.ceil(4.0 * cfg.field_sigma_m / cfg.resolution_m))
 
 
 def _grid_over(lo: np.ndarray, hi: np.ndarray, res: float) -> tuple[np.ndarray, np.ndarray]:
@@ -355,11 +420,17 @@ def _window_posterior(field: LogField, pts: np.ndarray, guess: Pose2D,
     t = np.arange(-n_xy, n_xy + 1)
     n_th = math.ceil(half_th / step)
     dth = np.arange(-n_th, n_th + 1) * step
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
     scores = _loops.mean_scores(field.grid, float(field.origin[0]), float(field.origin[1]),
-                                res, np.ascontiguousarray(pts, dtype=np.float64),
-                                guess.x, guess.y, guess.theta + dth, t, t, cfg.bilinear)
+                                res, pts, guess.x, guess.y, guess.theta + dth, t, t,
+                                cfg.bilinear)
+    fit = scores  # (the share of all end points on walls: the score the search reports)
+    if field.seen is not None:  # (the end points where the submap never looked: unscored)
+        fit = scores / seen_share(_loops.mean_scores(
+            field.seen, float(field.origin[0]), float(field.origin[1]), res, pts, guess.x,
+            guess.y, guess.theta + dth, t, t, cfg.bilinear))
     dm = t * res
-    log_post = cfg.effective_points * scores + odometry_log_prior(
+    log_post = cfg.effective_points * fit + odometry_log_prior(
         dm[None, None, :] / sx, dm[None, :, None] / sy, dth[:, None, None] / sth,
         cfg.odometry_glitch)
     a, r, c = np.unravel_index(int(np.argmax(log_post)), log_post.shape)

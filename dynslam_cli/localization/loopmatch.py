@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 from dynslam_cli.localization import _loops
 from dynslam_cli.localization._match import PointIndex
+from dynslam_cli.localization.correlative import View, seen_cells, seen_share
 from dynslam_cli.localization.globalsearch import gaussian
 from dynslam_cli.types import Pose2D
 
@@ -56,14 +56,6 @@ class LikelihoodField:
     seen_coarse: np.ndarray | None = None
 
 
-class View(NamedTuple):
-    """One scan of a submap: the laser's position and its end points in beam order (N×2),
-    in the submap's frame."""
-
-    origin: np.ndarray
-    points: np.ndarray
-
-
 def likelihood_field(points: np.ndarray, views: list[View] | None = None
                      ) -> LikelihoodField:
     """The field of the submap ``points``; with ``views``, also where they looked
@@ -81,28 +73,9 @@ def likelihood_field(points: np.ndarray, views: list[View] | None = None
         return LikelihoodField(fine, coarse, lo, index)
     from scipy.ndimage import minimum_filter
 
-    seen = seen_cells(views, lo, fine.shape)
+    seen = seen_cells(views, lo, fine.shape, FIELD_RES_M, FIELD_REACH_CELLS)
     return LikelihoodField(fine, coarse, lo, index, seen,
                            minimum_filter(seen, size=COARSE_CELLS + 1, mode="constant"))
-
-
-def seen_cells(views: list[View], origin: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """1.0 on the cells of a grid (cell (0, 0) centred on ``origin``) that a view looked at:
-    inside the fan from its laser through its end points, and within the field's reach
-    (FIELD_REACH_CELLS) of those cells, as far as a wall's likelihood spreads; else 0."""
-    from PIL import Image, ImageDraw
-    from scipy.ndimage import maximum_filter
-
-    image = Image.new("L", (shape[1], shape[0]), 0)
-    draw = ImageDraw.Draw(image)
-    for view in views:
-        if len(view.points) < 2:
-            continue
-        fan = np.vstack([view.origin[None, :], view.points])
-        xy = (fan - origin) / FIELD_RES_M + 0.5  # (a cell's centre: the pixel's)
-        draw.polygon([tuple(p) for p in xy.tolist()], fill=1, outline=1)
-    seen = np.asarray(image, dtype=np.float64)
-    return maximum_filter(seen, size=2 * FIELD_REACH_CELLS + 1, mode="constant")
 
 
 def _scores(grid: np.ndarray, origin: np.ndarray, pts: np.ndarray, thetas: np.ndarray,
@@ -161,7 +134,7 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
         bounds = _scores(field.coarse, field.origin, pts, guess.theta + dthetas, base,
                          coarse_t, coarse_t)
     if field.seen_coarse is not None:  # (the fewest seen below a coarse cell: a bound)
-        bounds /= _seen_share(_scores(field.seen_coarse, field.origin, pts,
+        bounds /= seen_share(_scores(field.seen_coarse, field.origin, pts,
                                       guess.theta + dthetas, base, coarse_t, coarse_t))
     ranked = bounds * preference[None]
     if blocks is None:
@@ -180,7 +153,7 @@ def correlative_match(field: LikelihoodField, pts: np.ndarray, guess: Pose2D,
         ths = dthetas[a] + sub_angles
         fine = _scores(field.fine, field.origin, pts, guess.theta + ths, base, tx, ty)
         if field.seen is not None:
-            fine /= _seen_share(_scores(field.seen, field.origin, pts, guess.theta + ths,
+            fine /= seen_share(_scores(field.seen, field.origin, pts, guess.theta + ths,
                                         base, tx, ty))
         for th, sc in zip(ths, fine, strict=True):
             w = sc * _preference(tx[None, :] * FIELD_RES_M, ty[:, None] * FIELD_RES_M,
@@ -292,16 +265,6 @@ def best_first(values: np.ndarray, k: int) -> np.ndarray:
     else:
         top = np.arange(flat.size)
     return top[np.lexsort((top, -flat[top]))][:k]
-
-
-MIN_SEEN_SHARE = 0.5  # a pose's score is over at least this share of the points
-
-
-def _seen_share(share: np.ndarray) -> np.ndarray:
-    """The share of a pose's points scored, where the field knows where its submap
-    looked: those on cells it saw, never less than MIN_SEEN_SHARE (a pose that puts most
-    points where the submap never looked scores as if they were misses)."""
-    return np.maximum(share, MIN_SEEN_SHARE)
 
 
 DISTANCE_PREFERENCE = 0.5  # weight falls by a quarter from the guess to the window edge

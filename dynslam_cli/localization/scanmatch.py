@@ -37,10 +37,14 @@ from dynslam_cli.localization.correlative import (
     LogField,
     OdometryCalibration,
     OdometryScale,
+    View,
     log_field,
+    mark_seen,
+    reach_cells,
     sampled_walls,
     scan_share,
     search,
+    seen_cells,
     seen_matrix,
     with_points,
 )
@@ -285,16 +289,20 @@ class LocalMap:
         self._field: LogField | None = None
         self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
+        self._fans: deque[View] = deque(maxlen=cfg.local_map_scans)
+        """Each key scan's laser and end points (matcher frame), where ``seen_only`` asks."""
+        self._fresh_fans: list[View] = []  # ... not in the field's seen cells yet
         self._stale = 0  # key scans added to the field since it was made anew
         self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
         self._stacked: ViewStack | None = None  # the views, stacked when first asked
         # after a key scan
 
     def add(self, pose: Pose2D, points: np.ndarray, reach: float = math.inf,
-            view: RangeView | None = None) -> None:
-        """A key scan's points (robot frame) seen from ``pose`` (matcher frame) by a laser
-        whose end points reach ``reach`` metres (``view``: its range view, where the local
-        map clears what it saw through)."""
+            view: RangeView | None = None, laser: tuple[float, float] = (0.0, 0.0)) -> None:
+        """A key scan's points (robot frame, in beam order) seen from ``pose`` (matcher
+        frame) by a laser at ``laser`` (robot frame) whose end points reach ``reach``
+        metres (``view``: its range view, where the local map clears what it saw
+        through)."""
         if view is not None:
             if self._cfg.clear_seen_through and self._keys:
                 self._clear(view)
@@ -303,6 +311,10 @@ class LocalMap:
         self._keys.append(transform_points(pose, points))
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
+            if self._cfg.correlative.seen_only:
+                fan = View(transform_points(pose, np.array([laser]))[0], self._keys[-1])
+                self._fans.append(fan)
+                self._fresh_fans.append(fan)
             half = self._cfg.correlative.resolution_m / 2
             walls = transform_points(pose, sampled_walls(points, half))
             self._walls.append(self._thinned(walls, half))
@@ -360,7 +372,21 @@ class LocalMap:
             self._field = with_points(self._field, np.concatenate(self._fresh), cfg)
             self._stale += len(self._fresh)
         self._fresh = []
+        if cfg.seen_only and (self._fresh_fans or self._field.seen is None):
+            self._mark_seen(self._field)
         return self._field
+
+    def _mark_seen(self, field: LogField) -> None:
+        """Where the key scans looked, into ``field.seen``: the new ones' fans added to it,
+        or all of them where the field is new (made anew, or grown)."""
+        cfg = self._cfg.correlative
+        if field.seen is None:
+            field.seen = seen_cells(list(self._fans), field.origin, field.grid.shape,
+                                    cfg.resolution_m, reach_cells(cfg))
+        else:
+            mark_seen(field.seen, self._fresh_fans, field.origin, cfg.resolution_m,
+                      reach_cells(cfg))
+        self._fresh_fans = []
 
 
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
@@ -455,7 +481,8 @@ class ScanMatcher:
             reach = min(cfg.max_range_m, scan.max_range)
             self._map.add(pose, pts if cfg.subsample == 1 else scan_points(scan, cfg.max_range_m),
                           reach, range_view(pose, scan, reach)
-                          if cfg.clear_seen_through or cfg.skip_seen_free else None)
+                          if cfg.clear_seen_through or cfg.skip_seen_free else None,
+                          (scan.laser.x, scan.laser.y))
             self._key_pose = pose
         return inc, source, cov
 
