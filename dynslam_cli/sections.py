@@ -635,27 +635,41 @@ class MatchConfig:
     -> 0.0423, 0.0779 -> 0.0534)."""
     normal_neighbours: int = 6
     """Points whose spread gives a local-map point's normal."""
-    normal_radius_m: float = 0.5
-    """... taken within this distance of it (m): fewer than three there (itself included: a
-    short stub seen from afar, a lone point) and the point has no normal, and ICP pairs
-    nothing with it. Unbounded (before stop 64), a stub's normal leaned toward the nearest
-    wall metres away and pinned the match along the wall it stands in front of: in the
-    office world's hall, a 0.55 m stub 8 m off, the only thing a scan of one wall saw
-    across it, slid the fused match 2.5 cm back and forth for 6 scans (perfect odometry;
-    the fused steps' error 2.76 -> 1.92 mm rms). Measured at dbae05f -> with it, this
-    machine, one run each: relations, pose graph off / on, MIT 0.0384 / 0.0266 -> 0.0342 /
-    0.0262 m, Intel 0.0908 / 0.0138 -> 0.0801 / 0.0138, FR079 0.0724 / 0.0650 -> 0.0706 /
-    0.0649, Intel bag 0.0645 / 0.0142 -> 0.0812 / 0.0142, FR079 bag 0.0763 / 0.0621 ->
-    0.0762 / 0.0625, FR079 with the original mount 0.0377 / 0.0304 -> 0.0372 / 0.0303;
-    worlds, true odometry, seeds 0 / 1 / 2: office 0.0801 / 0.0607 / 0.0457 -> 0.0551 /
-    0.0837 / 0.0499 (graph off 0.1795 / 0.1488 / 0.1076 -> 0.0837 / 0.1281 / 0.1323),
-    crowd 0.0107 / 0.0067 / 0.0104 -> 0.0152 / 0.0103 / 0.0104, wards 0.0057 / 0.0060 /
-    0.0063 -> 0.0052 / 0.0052 / 0.0059, corridors, hall and arena within 1 mm; drifting
-    (seed 0) office 0.0963 -> 0.0775, corridors 0.0075 -> 0.0067, hall 0.0051 -> 0.0039,
-    crowd 0.0069 -> 0.0076, arena 0.0029; Radish (seed 0) 27 of 39 rows at or below the
-    better peer either way, geometric mean of the ATE ratios 1.103, 0.993 without fhw
-    harsh (0.124 -> 7.58 m: scan 59, after a 63° key-frame turn, is placed 76° against
-    its odometry before and after; the run recovers from it before, not after)."""
+    normal_gap: float = 0.0
+    """Above 0: ... this side of a gap: a neighbour more than this many times as far from
+    the point as the one before it lies across empty space from the rest, and it and the
+    farther ones are left out; fewer than three left (itself included: a short stub seen
+    from afar, a lone point) and the point has no normal, and ICP pairs nothing with it. 0
+    (the default): every one of the nearest. Then a stub's normal leans toward the nearest
+    wall metres away and pins the match along the wall it stands in front of: in the
+    office world's hall (perfect odometry) a 0.55 m stub 8 m off, the only thing a scan of
+    one wall saw across it, slides the fused match 2.5 cm back and forth for 6 scans (with
+    a gap of 3, the fused steps' error 2.76 -> 1.95 mm rms). A fixed bound of 0.5 m
+    (161c9aa) did as much for the stub but took the normals of a wall seen outdoors, whose
+    points lie 0.5-1 m apart. Measured at dbae05f -> 161c9aa
+    (0.5 m) -> with the gap, this machine, one run each: relations, pose graph off / on,
+    MIT 0.0384 / 0.0266 -> 0.0342 / 0.0262 -> 0.0298 / 0.0265 m, Intel 0.0908 / 0.0138 ->
+    0.0801 / 0.0138 -> 0.0948 / 0.0140, FR079 0.0724 / 0.0650 -> 0.0706 / 0.0649 -> 0.0723
+    / 0.0649, Intel bag 0.0645 / 0.0142 -> 0.0812 / 0.0142 -> 0.0981 / 0.0145, FR079 bag
+    0.0763 / 0.0621 -> 0.0762 / 0.0625 -> 0.0771 / 0.0626, FR079 with the original mount
+    0.0377 / 0.0304 -> 0.0372 / 0.0303 -> 0.0381 / 0.0304, its bag 0.0518 / 0.0312 ->
+    0.0555 / 0.0312 -> 0.0502 / 0.0311; five perturbed copies, pose graph off, median
+    (spread): MIT 0.0390 (22%) -> 0.0350 (31%) -> 0.0360 (29%), Intel 0.0754 (20%) -> 0.0803
+    (29%) -> 0.0894 (10%); worlds, true odometry, pose graph on, seeds 0 / 1 / 2: office
+    0.0801 / 0.0607 / 0.0457 -> 0.0551 / 0.0837 / 0.0499 -> 0.0937 / 0.0702 / 0.0467,
+    corridors 0.0049 / 0.0043 / 0.0051 -> 0.0043 / 0.0044 / 0.0050 -> 0.0071 / 0.0053 /
+    0.0044, hall 0.0036 / 0.0031 / 0.0043 -> 0.0038 / 0.0041 / 0.0045 -> 0.0051 / 0.0034 /
+    0.0045, crowd 0.0107 / 0.0067 / 0.0104 -> 0.0152 / 0.0103 / 0.0104 -> 0.0125 / 0.0085 /
+    0.0091, arena 0.0028 / 0.0029 / 0.0031 -> 0.0029 / 0.0029 / 0.0029 -> 0.0033 / 0.0036 /
+    0.0033, wards 0.0057 / 0.0060 / 0.0063 -> 0.0052 / 0.0052 / 0.0059 -> 0.0049 / 0.0054 /
+    0.0063; drifting (seed 0) office 0.0963 -> 0.0775 -> 0.0696, corridors 0.0075 -> 0.0067
+    -> 0.0073, hall 0.0051 -> 0.0039 -> 0.0044, crowd 0.0069 -> 0.0076 -> 0.0069, arena
+    0.0029 -> 0.0029 -> 0.0033; Radish (seed 0) 27 of 39 rows at or below the better peer
+    each time, geometric mean of the ATE ratios to dbae05f 1.103 (fhw harsh broken, 7.58 m)
+    -> 0.987; freiburg-campus moderate over five perturbed copies 0.862 / 0.950 / 1.052 ->
+    0.373 / 0.902 / 15.5 -> 0.823 / 0.994 / 15.1 (one copy of five broken). Off, as it
+    was: the Intel log's local SLAM loses over five copies, and the full runs gain
+    nothing."""
     within_reach: bool = False
     """Match only the end points the local map could have seen: within the laser's reach
     (less ``reach_margin_m``) of one of its key scans' poses, at the odometry's guess. The
@@ -730,7 +744,8 @@ class MatchConfig:
         require([(self.method in ("icp", "correlative"),
                   "match.method must be icp or correlative"),
                  (self.seen_free_views >= 1, "match.seen_free_views must be >= 1"),
-                 (self.normal_radius_m > 0, "match.normal_radius_m must be > 0"),
+                 (self.normal_gap == 0 or self.normal_gap > 1,
+                  "match.normal_gap must be 0 (off) or > 1"),
                  (self.thin_to in ("first", "mean"), 'match.thin_to must be "first" or "mean"')])
         self.icp.check()
         self.correlative.check()

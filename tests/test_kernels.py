@@ -44,21 +44,25 @@ def test_normals_are_the_least_spread_direction_of_the_k_nearest():
 
 def test_a_short_stub_far_from_other_walls_keeps_its_own_normal():
     # a wall along y at x = 0 and, 8 m away, a 0.56 m stub along y seen from afar (5 points
-    # 0.14 m apart, fewer than the 6 neighbours a normal takes): within a radius its normal
-    # is its own (along x), not leaned toward the wall's points 8 m away
+    # 0.14 m apart, fewer than the 6 neighbours a normal takes): this side of the gap its
+    # normal is its own (along x), not leaned toward the wall's points 8 m away
     wall = np.column_stack((np.zeros(200), np.linspace(-5, 5, 200)))
     stub = np.column_stack((np.full(5, 8.0), np.linspace(-0.28, 0.28, 5)))
     points = np.vstack((wall, stub))
-    bounded = PointIndex(points, neighbours=6, radius=0.5).normals()[200:]
+    bounded = PointIndex(points, neighbours=6, gap=3.0).normals()[200:]
     np.testing.assert_allclose(np.abs(bounded[:, 0]), 1.0, atol=1e-9)
     unbounded = PointIndex(points, neighbours=6).normals()[200:]
     assert np.all(np.abs(unbounded[:, 0]) < 0.5)  # (the old way: along the stub)
+    # a far wall seen outdoors, its points 0.6 m apart (1° at 35 m): they keep their normals
+    far = np.column_stack((np.linspace(-6, 6, 21), np.full(21, 35.0)))
+    sparse = PointIndex(np.vstack((wall, far)), neighbours=6, gap=3.0).normals()[200:]
+    np.testing.assert_allclose(np.abs(sparse[:, 1]), 1.0, atol=1e-9)
 
 
-def test_a_point_with_too_few_neighbours_within_the_radius_has_no_normal_and_no_pair():
+def test_a_point_with_too_few_neighbours_this_side_of_a_gap_has_no_normal_and_no_pair():
     wall = np.column_stack((np.linspace(0, 5, 101), np.zeros(101)))
     lone = np.array([[2.5, 3.0], [2.6, 3.0]])  # two points: no line to speak of
-    index = PointIndex(np.vstack((wall, lone)), neighbours=6, radius=0.5)
+    index = PointIndex(np.vstack((wall, lone)), neighbours=6, gap=3.0)
     normals = index.normals()
     np.testing.assert_array_equal(normals[101:], 0.0)
     assert np.all(np.abs(normals[:101, 1]) == pytest.approx(1.0))

@@ -25,11 +25,12 @@ cdef enum:
 cdef class PointIndex:
     """2-D points in square buckets of side ``cell``, for nearest-point look-ups within a
     bound (fastest when the bound is about the cell size: 3×3 buckets are searched); and
-    each point's normal from its ``neighbours`` nearest (at most 64) within ``radius``,
-    computed when first asked for (ICP asks for those of the points it pairs with: a few
-    hundred of a local map's thousands) and kept. A point with fewer than MIN_NORMAL_POINTS
-    within ``radius`` (itself included: a lone point, an end point of a short stub seen from
-    afar) has no surface to be a line of: its normal is (0, 0)."""
+    each point's normal from its ``neighbours`` nearest (at most 64) this side of a gap (a
+    neighbour more than ``gap`` times as far as the one before it lies across empty space
+    from the rest), computed when first asked for (ICP asks for those of the points it
+    pairs with: a few hundred of a local map's thousands) and kept. A point with fewer than
+    MIN_NORMAL_POINTS so near (itself included: a lone point, a short stub seen from afar)
+    has no surface to be a line of: its normal is (0, 0)."""
 
     cdef readonly object points
     cdef const double[:, ::1] pts
@@ -39,12 +40,12 @@ cdef class PointIndex:
     cdef Py_ssize_t[::1] order
     cdef const double[:, ::1] by_bucket  # the points in bucket order: read in sequence
     cdef Py_ssize_t neighbours
-    cdef double radius2
+    cdef double gap2
     cdef double[:, ::1] nrm  # each point's normal, where ...
     cdef u8[::1] has_nrm  # ... computed
 
     def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6,
-                 double radius=INFINITY):
+                 double gap=INFINITY):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.pts = self.points
         self.cell = cell
@@ -52,7 +53,7 @@ cdef class PointIndex:
         if not 1 <= neighbours <= MAX_NEIGHBOURS:
             raise ValueError(f"neighbours must be 1-{MAX_NEIGHBOURS}, not {neighbours}")
         self.neighbours = min(neighbours, n)
-        self.radius2 = radius * radius
+        self.gap2 = gap * gap
         self.nrm = np.zeros((n, 2))
         self.has_nrm = np.zeros(n, dtype=np.uint8)
         if n == 0:
@@ -144,7 +145,7 @@ cdef class PointIndex:
 
     cdef void _normal(self, Py_ssize_t i) noexcept nogil:
         """Point i's unit normal into nrm[i], unless it is there: the direction of least
-        spread of its ``neighbours`` nearest points within the radius (itself included);
+        spread of its ``neighbours`` nearest points this side of a gap (itself included);
         (0, 0) where they are fewer than MIN_NORMAL_POINTS."""
         if self.has_nrm[i]:
             return
@@ -153,8 +154,11 @@ cdef class PointIndex:
         cdef Py_ssize_t m, kk
         cdef double mx, my, sxx, syy, sxy, dx, dy, a
         self.has_nrm[i] = 1
-        kk = self._search(self.pts[i, 0], self.pts[i, 1], self.neighbours,
-                          self.radius2, iv, dv)
+        kk = self._search(self.pts[i, 0], self.pts[i, 1], self.neighbours, INFINITY, iv, dv)
+        m = 2  # (0: the point itself; 1: its nearest, always taken)
+        while m < kk and (dv[m] <= self.gap2 * dv[m - 1] or dv[m - 1] == 0.0):
+            m += 1
+        kk = min(kk, m)
         if kk < MIN_NORMAL_POINTS:
             self.nrm[i, 0] = 0.0
             self.nrm[i, 1] = 0.0

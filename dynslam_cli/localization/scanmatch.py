@@ -278,7 +278,7 @@ def seen_through(view: RangeView, points: np.ndarray) -> np.ndarray:
 class LocalMap:
     """The last ``local_map_scans`` key scans' points in the matcher's frame, thinned to one
     point per ``local_map_cell_m`` square, indexed for ICP with their normals (the spread
-    of each point's ``normal_neighbours`` nearest within ``normal_radius_m``)."""
+    of each point's ``normal_neighbours`` nearest, with ``normal_gap`` this side of a gap)."""
 
     def __init__(self, cfg: MatchConfig) -> None:
         self._keys: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)
@@ -325,7 +325,7 @@ class LocalMap:
             return
         self.reference = PointIndex(self._thinned(pts, self._cfg.local_map_cell_m),
                                     neighbours=self._cfg.normal_neighbours,
-                                    radius=self._cfg.normal_radius_m)
+                                    gap=self._cfg.normal_gap or math.inf)
 
     def _thinned(self, points: np.ndarray, cell: float) -> np.ndarray:
         """One point per ``cell`` square, as ``thin_to`` says."""
