@@ -72,6 +72,25 @@ def test_a_point_with_too_few_neighbours_this_side_of_a_gap_has_no_normal_and_no
     assert share == pytest.approx(51 / 53)
 
 
+def test_pairs_on_a_thick_wall_weigh_less_with_thickness_weights():
+    """A thin wall (y = 0) and a cluttered one (y = 2, its points ±5 cm about it): weighed
+    by their neighbours' spread along the normal, the thin wall's pairs keep their
+    information and the cluttered wall's lose most of theirs."""
+    rng = np.random.default_rng(3)
+    x = np.linspace(-3, 3, 121)
+    thin = np.column_stack((x, np.zeros_like(x)))
+    thick = np.column_stack((x, 2.0 + rng.uniform(-0.05, 0.05, len(x))))
+    index = PointIndex(np.vstack((thin, thick)), neighbours=6)
+
+    def y_information(scan: np.ndarray, thickness: bool) -> float:
+        out = _match.icp(index, scan, 0.0, 0.0, 0.0, 10, 0.3, 0.1, 0, 0, 0, 0.02, 1e-3,
+                         1e-4, thickness)
+        return float(out[6][1, 1])
+
+    assert y_information(thin, True) == pytest.approx(y_information(thin, False), rel=0.02)
+    assert y_information(thick, True) < 0.5 * y_information(thick, False)
+
+
 def test_traced_cells_match_sampling_each_beam_every_cell():
     g = GridStack(0.05, 1.0, ("static",))
     n = 361

@@ -42,6 +42,7 @@ cdef class PointIndex:
     cdef Py_ssize_t neighbours
     cdef double gap2
     cdef double[:, ::1] nrm  # each point's normal, where ...
+    cdef double[::1] thick  # ... and its neighbours' spread along it (variance, m²) ...
     cdef u8[::1] has_nrm  # ... computed
 
     def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6,
@@ -55,6 +56,7 @@ cdef class PointIndex:
         self.neighbours = min(neighbours, n)
         self.gap2 = gap * gap
         self.nrm = np.zeros((n, 2))
+        self.thick = np.zeros(n)
         self.has_nrm = np.zeros(n, dtype=np.uint8)
         if n == 0:
             self.x0 = self.y0 = 0.0
@@ -179,6 +181,9 @@ cdef class PointIndex:
         a = 0.5 * atan2(2.0 * sxy, sxx - syy) + 1.5707963267948966
         self.nrm[i, 0] = cos(a)
         self.nrm[i, 1] = sin(a)
+        self.thick[i] = (sxx * self.nrm[i, 0] * self.nrm[i, 0]
+                         + 2.0 * sxy * self.nrm[i, 0] * self.nrm[i, 1]
+                         + syy * self.nrm[i, 1] * self.nrm[i, 1]) / kk
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""
@@ -221,7 +226,7 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 
 def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double gth,
         int iterations, double gate_max, double gate_min, double wx, double wy, double wth,
-        double sigma, double step_m, double step_rad):
+        double sigma, double step_m, double step_rad, bint thickness=False):
     """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
     (a step of under step_m in |x| + |y| and step_rad in θ) at a wider gate, it goes on at
     the narrowest until converged there (the answer is then the narrow gate's, outliers
@@ -232,7 +237,7 @@ def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double
     cdef bint ok
     with nogil:
         ok = _icp(index, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
-                  wth, sigma, step_m, step_rad, out)
+                  wth, sigma, step_m, step_rad, thickness, out)
     h = np.zeros((3, 3))
     if not ok:
         return gx, gy, gth, 0.0, INFINITY, False, h
@@ -245,7 +250,7 @@ def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double
 cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
                double gth, int iterations, double gate_max, double gate_min, double wx,
                double wy, double wth, double sigma, double step_m, double step_rad,
-               double out[11]) noexcept nogil:
+               bint thickness, double out[11]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
     cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
     cdef double share = 0.0, rms = INFINITY, sq
@@ -285,6 +290,8 @@ cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
             jac[1] = ny
             jac[2] = nx * dpx + ny * dpy
             w = 1.0 / max(1.0, fabs(r) / sigma)
+            if thickness:  # (a line its neighbours do not lie on tells less: GICP's way)
+                w *= sigma * sigma / (sigma * sigma + index.thick[j])
             for p in range(3):
                 b[p] += jac[p] * w * r
                 for q in range(3):

@@ -119,6 +119,9 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
     pairs as they count in the information). Fewer than 10 pairs: the guess, share 0,
     RMS ∞ and no information.
 
+    With ``cfg.thickness_weights`` each pair is weighed by σ² / (σ² + the variance of
+    its reference point's neighbours along its normal), in the solve and the information.
+
     The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M) counted as
     ``cfg.effective_pairs`` independent pairs (fewer pairs: as themselves, never as more
     than there are): a direction no tangent line constrains (along a corridor's walls) has
@@ -132,7 +135,7 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
     x, y, th, share, rms, ok, h = _match.icp(
         ref, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
-        RESIDUAL_SIGMA_M, *CONVERGED_STEP)
+        RESIDUAL_SIGMA_M, *CONVERGED_STEP, cfg.thickness_weights)
     if not ok:
         return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
     used = max(share * len(pts), 1.0)
