@@ -44,7 +44,6 @@ from dynslam_cli.localization.correlative import (
     sampled_walls,
     scan_share,
     search,
-    seen_cells,
     seen_matrix,
     with_points,
 )
@@ -294,7 +293,6 @@ class LocalMap:
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._fans: deque[View] = deque(maxlen=cfg.local_map_scans)
         """Each key scan's laser and end points (matcher frame), where ``seen_only`` asks."""
-        self._fresh_fans: list[View] = []  # ... not in the field's seen cells yet
         self._stale = 0  # key scans added to the field since it was made anew
         self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
         self._stacked: ViewStack | None = None  # the views, stacked when first asked
@@ -315,9 +313,8 @@ class LocalMap:
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
             if self._cfg.correlative.seen_only:
-                fan = View(transform_points(pose, np.array([laser]))[0], self._keys[-1])
-                self._fans.append(fan)
-                self._fresh_fans.append(fan)
+                self._fans.append(View(transform_points(pose, np.array([laser]))[0],
+                                       self._keys[-1]))
             half = self._cfg.correlative.resolution_m / 2
             walls = transform_points(pose, sampled_walls(points, half))
             self._walls.append(self._thinned(walls, half))
@@ -367,6 +364,7 @@ class LocalMap:
         each new key scan's points are added to it, and the key scans that left the local
         map stay in it."""
         cfg = self._cfg.correlative
+        fresh = len(self._fresh)  # (the last key scans, whose fans are not marked yet)
         if self._field is None or self._stale >= REBUILD_KEYS:
             walls = np.concatenate(self._walls)
             self._field = log_field(self._thinned(walls, cfg.resolution_m / 2), cfg)
@@ -375,21 +373,21 @@ class LocalMap:
             self._field = with_points(self._field, np.concatenate(self._fresh), cfg)
             self._stale += len(self._fresh)
         self._fresh = []
-        if cfg.seen_only and (self._fresh_fans or self._field.seen is None):
-            self._mark_seen(self._field)
+        if cfg.seen_only:
+            self._mark_seen(self._field, fresh)
         return self._field
 
-    def _mark_seen(self, field: LogField) -> None:
-        """Where the key scans looked, into ``field.seen``: the new ones' fans added to it,
-        or all of them where the field is new (made anew, or grown)."""
-        cfg = self._cfg.correlative
+    def _mark_seen(self, field: LogField, fresh: int) -> None:
+        """Where the key scans looked, into ``field.seen``: the ``fresh`` last ones' fans
+        added to it, or all of them where the field is new (made anew, or grown)."""
         if field.seen is None:
-            field.seen = seen_cells(list(self._fans), field.origin, field.grid.shape,
-                                    cfg.resolution_m, reach_cells(cfg))
-        else:
-            mark_seen(field.seen, self._fresh_fans, field.origin, cfg.resolution_m,
-                      reach_cells(cfg))
-        self._fresh_fans = []
+            field.seen = np.zeros(field.grid.shape)
+            fresh = len(self._fans)
+        elif not fresh:
+            return
+        fans = list(self._fans)[-fresh:]
+        cfg = self._cfg.correlative
+        mark_seen(field.seen, fans, field.origin, cfg.resolution_m, reach_cells(cfg))
 
 
 def thin(points: np.ndarray, cell: float) -> np.ndarray:
