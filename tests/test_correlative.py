@@ -767,3 +767,23 @@ def test_the_local_map_marks_where_its_key_scans_looked():
     plain = LocalMap(MatchConfig())
     plain.add(Pose2D(0.0, 0.0, facing), _wall_points(Pose2D(0.0, 0.0, facing)))
     assert plain.field().seen is None  # (the default: every end point scored)
+
+
+@pytest.mark.parametrize("inliers_over", ["all", "seen"])
+def test_a_scan_turned_to_new_ground_is_matched_on_what_the_local_map_saw(inliers_over):
+    """The robot turns 120° on the spot (its wheels say 125°): two thirds of the new scan
+    look where the key scan never did, so under half its end points can fit anything.
+    Counted over all of them the match is refused and the wheels' 5° error kept; over
+    those landing where the local map looked (``inliers_over = "seen"``) the turn is
+    matched."""
+    from .test_loopclosure import scan_at
+
+    matcher = ScanMatcher(MatchConfig(inliers_over=inliers_over), NoiseModel())
+    matcher.increment(scan_at(Pose2D(), Pose2D()))
+    turned = Pose2D(0.0, 0.0, math.radians(120.0))
+    inc, source, _ = matcher.increment(scan_at(turned, Pose2D(0.0, 0.0, math.radians(125.0))))
+    if inliers_over == "all":
+        assert source == "fallback" and abs(math.degrees(inc.theta) - 125.0) < 1e-6
+    else:
+        assert source == "matched"
+        assert abs(math.degrees(inc.theta) - 120.0) < 0.3 and math.hypot(inc.x, inc.y) < 0.02

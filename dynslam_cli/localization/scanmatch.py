@@ -34,6 +34,7 @@ from dynslam_cli.geometry import (
 from dynslam_cli.localization import _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
+    MIN_SEEN_SHARE,
     LogField,
     OdometryCalibration,
     OdometryScale,
@@ -44,6 +45,7 @@ from dynslam_cli.localization.correlative import (
     sampled_walls,
     scan_share,
     search,
+    seen_cells,
     seen_matrix,
     with_points,
 )
@@ -292,7 +294,10 @@ class LocalMap:
         self._walls: deque[np.ndarray] = deque(maxlen=cfg.local_map_scans)  # ... sampled
         self._fresh: list[np.ndarray] = []  # key scans not in the field yet
         self._fans: deque[View] = deque(maxlen=cfg.local_map_scans)
-        """Each key scan's laser and end points (matcher frame), where ``seen_only`` asks."""
+        """Each key scan's laser and end points (matcher frame), where ``seen_only`` or
+        ``inliers_over = "seen"`` asks."""
+        self._looked: LogField | None = None  # the field ``_looked_grid`` was drawn for
+        self._looked_grid = np.zeros((0, 0))  # ... where the fans looked (1) or not (0)
         self._stale = 0  # key scans added to the field since it was made anew
         self._views: deque[RangeView] = deque(maxlen=cfg.local_map_scans)
         self._stacked: ViewStack | None = None  # the views, stacked when first asked
@@ -312,9 +317,10 @@ class LocalMap:
         self._keys.append(transform_points(pose, points))
         self._seen_from.append((pose.x, pose.y, reach))
         if self._cfg.method == "correlative":  # (ICP matches against the points alone)
-            if self._cfg.correlative.seen_only:
+            if self._cfg.correlative.seen_only or self._cfg.inliers_over == "seen":
                 self._fans.append(View(transform_points(pose, np.array([laser]))[0],
                                        self._keys[-1]))
+                self._looked = None  # (a new fan: drawn again when next asked)
             half = self._cfg.correlative.resolution_m / 2
             walls = transform_points(pose, sampled_walls(points, half))
             self._walls.append(self._thinned(walls, half))
@@ -357,6 +363,27 @@ class LocalMap:
         keys = np.array(self._seen_from).reshape(-1, 3)
         d2 = ((points[:, None, :] - keys[None, :, :2]) ** 2).sum(-1)
         return np.any(d2 <= np.maximum(keys[None, :, 2] - margin, 0.0) ** 2, axis=1)
+
+    def looked_share(self, points: np.ndarray) -> float:
+        """The share of ``points`` (N×2, matcher frame) that land on the lookup table's
+        cells where the key scans looked (their fans, widened by a wall's reach)."""
+        field = self.field()
+        if field.seen is not None:  # (``seen_only`` keeps it marked)
+            looked = field.seen
+        else:
+            if self._looked is not field:  # (a key scan added since, or the table grown)
+                cfg = self._cfg.correlative
+                self._looked_grid = seen_cells(list(self._fans), field.origin,
+                                               field.grid.shape, cfg.resolution_m,
+                                               reach_cells(cfg))
+                self._looked = field
+            looked = self._looked_grid
+        cells = np.rint((points - field.origin) / field.resolution).astype(np.int64)
+        rows, cols = looked.shape
+        inside = ((cells[:, 0] >= 0) & (cells[:, 0] < cols)
+                  & (cells[:, 1] >= 0) & (cells[:, 1] < rows))
+        hit = looked[cells[inside, 1], cells[inside, 0]] > 0
+        return float(np.count_nonzero(hit)) / max(len(points), 1)
 
     def field(self) -> LogField:
         """The correlative search's lookup table of the local map. Made anew from the local
@@ -557,8 +584,8 @@ class ScanMatcher:
         post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers, turn)
         source = "matched"
         agrees = not _outside(post.pose, guess, window, cfg.correlative.window_sigmas)
-        if post.score < cfg.min_inliers or not agrees or (cfg.confirm_jumps
-                                                          and self._jumped()):
+        if not self._fits(post.score, post.pose, searched) or not agrees or (
+                cfg.confirm_jumps and self._jumped()):
             for retry_guess, sigma, is_anchored in self._retry_guesses(odom, window):
                 retry = search(field, searched, retry_guess, sigma, cfg.correlative,
                                cfg.min_inliers, turn)
@@ -566,8 +593,8 @@ class ScanMatcher:
                     post, source = retry, "recovered"
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
-        if post.score < cfg.min_inliers:  # (at the odometry's guess: it agrees with it)
-            return Placed(guess, "fallback")
+        if not self._fits(post.score, post.pose, searched):  # (at the odometry's guess: it
+            return Placed(guess, "fallback")  # agrees with it)
         if cfg.skip_seen_free:  # (where the search placed the scan)
             standing = ~self._map.seen_free(transform_points(post.pose, pts),
                                             cfg.seen_free_views)
@@ -575,7 +602,7 @@ class ScanMatcher:
                 pts = pts[standing]
         refined = icp(reference, pts, post.pose, cfg.icp, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
-        if (refined.share < cfg.min_inliers or refined.rms > cfg.max_rms_m
+        if (not self._fits(refined.share, refined.pose, pts) or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return Placed(post.pose, source, post.cov, agrees)
         self.fit_rms = refined.rms
@@ -589,6 +616,16 @@ class ScanMatcher:
             return Placed(fused[0], source, fused[1], agrees, refined.pose)
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
+
+    def _fits(self, share: float, pose: Pose2D, pts: np.ndarray) -> bool:
+        """Whether ``share`` of ``pts`` fitting the local map at ``pose`` is enough: at
+        least ``min_inliers`` of all of them, or with ``inliers_over = "seen"`` of those
+        landing where the local map looked (at least MIN_SEEN_SHARE of them counted)."""
+        needed = self.cfg.min_inliers
+        if share >= needed or self.cfg.inliers_over == "all":
+            return share >= needed
+        looked = self._map.looked_share(transform_points(pose, pts))
+        return share >= needed * max(looked, MIN_SEEN_SHARE)
 
     def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
         """The standard deviations (x, y, θ) of a wheel increment that the search's window
