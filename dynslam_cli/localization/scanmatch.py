@@ -619,13 +619,14 @@ class ScanMatcher:
 
     def _fits(self, share: float, pose: Pose2D, pts: np.ndarray) -> bool:
         """Whether ``share`` of ``pts`` fitting the local map at ``pose`` is enough: at
-        least ``min_inliers`` of all of them, or with ``inliers_over = "seen"`` of those
-        landing where the local map looked (at least MIN_SEEN_SHARE of them counted)."""
-        needed = self.cfg.min_inliers
-        if share >= needed or self.cfg.inliers_over == "all":
-            return share >= needed
+        least ``min_inliers`` of all of them, or with ``inliers_over = "seen"``
+        ``seen_inliers`` of those that land where the local map looked (at least
+        MIN_SEEN_SHARE of all counted)."""
+        cfg = self.cfg
+        if share >= cfg.min_inliers or cfg.inliers_over == "all":
+            return share >= cfg.min_inliers
         looked = self._map.looked_share(transform_points(pose, pts))
-        return share >= needed * max(looked, MIN_SEEN_SHARE)
+        return share >= cfg.seen_inliers * max(looked, MIN_SEEN_SHARE)
 
     def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
         """The standard deviations (x, y, θ) of a wheel increment that the search's window
