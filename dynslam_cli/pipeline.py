@@ -53,11 +53,9 @@ class DynamicSlam:
                          ScanMeasurer.configured(config.ekf, config.match, config.corners))
         self._motion_sources: Counter[str] = Counter()
         self._mount_error = (0.0, 0.0)  # the front end's, learned so far (frontend.Motion)
-        self._loops = (BackEnd(config.loop, config.ekf.noise,
-                                  prior.walls() if prior is not None else None)
-                       if use_graph else None)
+        walls = prior.walls() if prior is not None else None  # (the graph holds to them)
+        self._backend = BackEnd(config.loop, config.ekf.noise, walls) if use_graph else None
         self._store = ScanStore() if use_graph else None
-        self._count = 0
 
     def _mapper(self, changes: bool, keep_dynamic: bool = True) -> DynamicMapper:
         c = self.config
@@ -84,7 +82,6 @@ class DynamicSlam:
         self._trajectory.extend((scan.stamp, pose.x, pose.y, pose.theta))
         if self._store is not None:
             self._store.add(scan)
-        self._count += 1
         return pose
 
     def localize(self, scan: Scan) -> Pose2D:
@@ -94,7 +91,7 @@ class DynamicSlam:
             return self.odometry_pose(scan)
         local, moved = self.track_with_ekf(scan)  # then the graph: a node every so often, a
         # loop closure where the robot is back in a known place, the scan placed by the graph
-        return local if self._loops is None else self._loops.place(local, scan, moved)
+        return local if self._backend is None else self._backend.place(local, scan, moved)
 
     def odometry_pose(self, scan: Scan) -> Pose2D:
         """The scan's odometry in the map frame (on a prior map, the prior's)."""
@@ -115,13 +112,13 @@ class DynamicSlam:
         slam, u = self._slam, motion.increment
         q = slam.motion_covariance(u, motion.cov, scan.has_odometry)  # (once: the EKF's and
         # the graph chain's)
-        pose = slam.step(self._count, u, q, scan.has_odometry, corners,
+        pose = slam.step(len(self._trajectory) // 4, u, q, scan.has_odometry, corners,
                          lambda xy: self.mapper.classify_landmarks(self.to_map(xy)))
         return pose, (u, q)
 
     def to_map(self, points: np.ndarray) -> np.ndarray:
         """EKF-frame positions (N×2) into the map frame by the current graph correction."""
-        return points if self._loops is None else self._loops.to_map(points)
+        return points if self._backend is None else self._backend.to_map(points)
 
     def current(self) -> SlamResult:
         """The state so far, as mapped online (for snapshots: with the pose graph, D is kept
@@ -134,11 +131,11 @@ class DynamicSlam:
         trajectory, so places seen before and after a loop closure agree. ``on_phase(what,
         done, total)`` tells how the final work goes."""
         trajectory = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)
-        if self._loops is None or self._store is None or not len(self._store):
+        if self._backend is None or self._store is None or not len(self._store):
             return self._result(self.mapper, trajectory, final=True)
         say = on_phase or (lambda what, done, total: None)
         say("optimizing the pose graph", 0, 0)
-        self._loops.finish()
+        self._backend.finish()
         trajectory = np.column_stack((trajectory[:, 0], self.estimates()))
         mapper = self._mapper(changes=True)
         mapper.grids.reserve_like(self.mapper.grids)
@@ -150,22 +147,22 @@ class DynamicSlam:
         """The current pose estimates (N×3, map frame) of the scans by index (default: every
         scan): with the pose graph, each from its node's pose now and its EKF offset from
         the node (so a loop closure moves the scans before it too), else as tracked."""
-        if self._loops is not None:
-            return self._loops.estimates(scans)
+        if self._backend is not None:
+            return self._backend.estimates(scans)
         poses = np.asarray(self._trajectory, dtype=np.float64).reshape(-1, 4)[:, 1:]
         return poses if scans is None else poses[scans]
 
     def _result(self, mapper: DynamicMapper, trajectory: np.ndarray, final: bool = False
                 ) -> SlamResult:
-        closures = self._loops.loop_closures() if final and self._loops is not None else None
+        closures = self._backend.loop_closures() if final and self._backend is not None else None
         return SlamResult.of(mapper, trajectory, self.landmarks(mapper), self.counts(), final,
                              closures)
 
     def counts(self) -> dict[str, int]:
         """How localization went, for ``summary.json``."""
         out = match_counts(self._motion_sources) if self.config.match.enabled else {}
-        if self._loops is not None:
-            out.update(self._loops.counts())
+        if self._backend is not None:
+            out.update(self._backend.counts())
         if self._prior is not None:
             out["prior"] = self._prior.report
         if self.config.match.correlative.calibrate_mount:
@@ -179,9 +176,10 @@ class DynamicSlam:
         mapper = self.mapper if mapper is None else mapper
         if self._slam is None:
             return []
-        return landmarks_of(self._slam.landmark_map(
-            self._loops.scan_correction if self._loops is not None and self._count else None,
-            self.config.map.resolution_m), mapper.classify_landmarks)
+        correction = (self._backend.scan_correction
+                      if self._backend is not None and self._trajectory else None)
+        return landmarks_of(self._slam.landmark_map(correction, self.config.map.resolution_m),
+                            mapper.classify_landmarks)
 
 
 def run(scans: Iterable[Scan], config: Config,
