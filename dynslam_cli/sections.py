@@ -743,7 +743,7 @@ class MatchConfig:
     office lose; with no-return beams free to the laser's reach, seeds 0-2, geometric
     mean of the 15 ATEs 0.0319 -> 0.0603), relations MIT
     0.0632 -> 0.0672, Intel 0.1115 -> 0.1276, FR079 0.0731 -> 0.0744; MIT 1.27x the
-    wall time (farm-bench -n 5 --vs, 8.02 against 6.30 s)."""
+    wall time (five pairs run in turn, 8.02 against 6.30 s)."""
     skip_seen_free: bool = True
     """ICP refines the correlative search's pose without the scan's end points that land,
     at that pose, where ``seen_free_views`` key scans of the local map saw through
@@ -893,7 +893,7 @@ class LoopConfig:
     0.0458 (11%); Radish seed 0, 26 of 39 rows at or below the better peer either way,
     medians 0.118 / 0.134 / 0.129 -> 0.116 / 0.132 / 0.129 m; worlds with true odometry,
     seeds 0-2, office 0.0677 / 0.0423 / 0.0534 -> 0.0535 / 0.0386 / 0.0519, every other
-    world within 0.1 mm; MIT 0.96x the wall time, the 1 h hall 1.01x (farm-bench --vs)."""
+    world within 0.1 mm; MIT 0.96x the wall time, the 1 h hall 1.01x (pairs run in turn)."""
     prior_every_m: float = 1.0
     """With ``--prior``: the scans are matched on the prior's walls at most once per this
     much driven."""
