@@ -593,8 +593,8 @@ class ScanMatcher:
                     post, source = retry, "recovered"
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
-        if not self._fits(post.score, post.pose, searched):  # (at the odometry's guess: it
-            return Placed(guess, "fallback")  # agrees with it)
+        if not self._fits(post.score, post.pose, searched):
+            return Placed(guess, "fallback")  # (at the odometry's guess: it agrees with it)
         if cfg.skip_seen_free:  # (where the search placed the scan)
             standing = ~self._map.seen_free(transform_points(post.pose, pts),
                                             cfg.seen_free_views)
