@@ -584,7 +584,7 @@ class ScanMatcher:
         post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers, turn)
         source = "matched"
         agrees = not _outside(post.pose, guess, window, cfg.correlative.window_sigmas)
-        if not self._fits(post.score, post.pose, searched) or not agrees or (
+        if not self._fits(post.score, post.pose, searched, agrees) or not agrees or (
                 cfg.confirm_jumps and self._jumped()):
             for retry_guess, sigma, is_anchored in self._retry_guesses(odom, window):
                 retry = search(field, searched, retry_guess, sigma, cfg.correlative,
@@ -593,7 +593,8 @@ class ScanMatcher:
                     post, source = retry, "recovered"
                     agrees = is_anchored and not _outside(retry.pose, retry_guess, sigma,
                                                           cfg.correlative.window_sigmas)
-        if not self._fits(post.score, post.pose, searched):
+        relax = agrees and source == "matched"  # (a retry's match must fit as all do)
+        if not self._fits(post.score, post.pose, searched, relax):
             return Placed(guess, "fallback")  # (at the odometry's guess: it agrees with it)
         if cfg.skip_seen_free:  # (where the search placed the scan)
             standing = ~self._map.seen_free(transform_points(post.pose, pts),
@@ -602,7 +603,7 @@ class ScanMatcher:
                 pts = pts[standing]
         refined = icp(reference, pts, post.pose, cfg.icp, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
-        if (not self._fits(refined.share, refined.pose, pts) or refined.rms > cfg.max_rms_m
+        if (not self._fits(refined.share, refined.pose, pts, relax) or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
             return Placed(post.pose, source, post.cov, agrees)
         self.fit_rms = refined.rms
@@ -617,13 +618,14 @@ class ScanMatcher:
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
 
-    def _fits(self, share: float, pose: Pose2D, pts: np.ndarray) -> bool:
+    def _fits(self, share: float, pose: Pose2D, pts: np.ndarray, relax: bool = True) -> bool:
         """Whether ``share`` of ``pts`` fitting the local map at ``pose`` is enough: at
-        least ``min_inliers`` of all of them, or with ``inliers_over = "seen"``
+        least ``min_inliers`` of all of them, or with ``inliers_over = "seen"`` and
+        ``relax`` (the match found within the odometry's window, not a retry's)
         ``seen_inliers`` of those that land where the local map looked (at least
         MIN_SEEN_SHARE of all counted)."""
         cfg = self.cfg
-        if share >= cfg.min_inliers or cfg.inliers_over == "all":
+        if share >= cfg.min_inliers or cfg.inliers_over == "all" or not relax:
             return share >= cfg.min_inliers
         looked = self._map.looked_share(transform_points(pose, pts))
         return share >= cfg.seen_inliers * max(looked, MIN_SEEN_SHARE)
