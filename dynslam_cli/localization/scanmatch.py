@@ -31,7 +31,7 @@ from dynslam_cli.geometry import (
     rotated_covariance,
     transform_points,
 )
-from dynslam_cli.localization import _match
+from dynslam_cli.localization import _loops, _match
 from dynslam_cli.localization._match import PointIndex, first_in_cells
 from dynslam_cli.localization.correlative import (
     MIN_SEEN_SHARE,
@@ -279,6 +279,9 @@ def seen_through(view: RangeView, points: np.ndarray) -> np.ndarray:
     return seen_through_counts(stacked_views([view]), points) > 0
 
 
+ORIGIN_CELL = np.zeros(1, dtype=np.intp)  # (one offset of no cells, for mean_scores)
+
+
 class LocalMap:
     """The last ``local_map_scans`` key scans' points in the matcher's frame, thinned to one
     point per ``local_map_cell_m`` square, indexed for ICP with their normals (the spread
@@ -364,13 +367,13 @@ class LocalMap:
         d2 = ((points[:, None, :] - keys[None, :, :2]) ** 2).sum(-1)
         return np.any(d2 <= np.maximum(keys[None, :, 2] - margin, 0.0) ** 2, axis=1)
 
-    def looked_share(self, points: np.ndarray) -> float:
-        """The share of ``points`` (N×2, matcher frame) that land on the lookup table's
-        cells where the key scans looked (their fans, widened by a wall's reach)."""
+    def looked_share(self, pose: Pose2D, points: np.ndarray) -> float:
+        """The share of ``points`` (N×2, robot frame) that land, seen from ``pose`` (matcher
+        frame), on the lookup table's cells where the key scans looked (their fans, widened
+        by a wall's reach): the search's own mean over a 0/1 grid."""
         field = self.field()
-        if field.seen is not None:  # (``seen_only`` keeps it marked)
-            looked = field.seen
-        else:
+        looked = field.seen  # (``seen_only`` keeps it marked)
+        if looked is None:
             if self._looked is not field:  # (a key scan added since, or the table grown)
                 cfg = self._cfg.correlative
                 self._looked_grid = seen_cells(list(self._fans), field.origin,
@@ -378,12 +381,11 @@ class LocalMap:
                                                reach_cells(cfg))
                 self._looked = field
             looked = self._looked_grid
-        cells = np.rint((points - field.origin) / field.resolution).astype(np.int64)
-        rows, cols = looked.shape
-        inside = ((cells[:, 0] >= 0) & (cells[:, 0] < cols)
-                  & (cells[:, 1] >= 0) & (cells[:, 1] < rows))
-        hit = looked[cells[inside, 1], cells[inside, 0]] > 0
-        return float(np.count_nonzero(hit)) / max(len(points), 1)
+        share = _loops.mean_scores(looked, float(field.origin[0]), float(field.origin[1]),
+                                   field.resolution, np.ascontiguousarray(points, np.float64),
+                                   pose.x, pose.y, np.array([pose.theta]), ORIGIN_CELL,
+                                   ORIGIN_CELL)
+        return float(share[0, 0, 0])
 
     def field(self) -> LogField:
         """The correlative search's lookup table of the local map. Made anew from the local
@@ -618,7 +620,7 @@ class ScanMatcher:
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
 
-    def _fits(self, share: float, pose: Pose2D, pts: np.ndarray, relax: bool = True) -> bool:
+    def _fits(self, share: float, pose: Pose2D, pts: np.ndarray, relax: bool) -> bool:
         """Whether ``share`` of ``pts`` fitting the local map at ``pose`` is enough: at
         least ``min_inliers`` of all of them, or with ``inliers_over = "seen"`` and
         ``relax`` (the match found within the odometry's window, not a retry's)
@@ -627,7 +629,7 @@ class ScanMatcher:
         cfg = self.cfg
         if share >= cfg.min_inliers or cfg.inliers_over == "all" or not relax:
             return share >= cfg.min_inliers
-        looked = self._map.looked_share(transform_points(pose, pts))
+        looked = self._map.looked_share(pose, pts)
         return share >= cfg.seen_inliers * max(looked, MIN_SEEN_SHARE)
 
     def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
