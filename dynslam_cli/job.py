@@ -34,7 +34,7 @@ from dynslam_cli.mapping.changes import KINDS
 from dynslam_cli.mapping.grid import OccupancyMap
 from dynslam_cli.pipeline import DynamicSlam, run
 from dynslam_cli.prior import PriorMap, PriorSession
-from dynslam_cli.readahead import ForkedFrontEnd, open_front_end
+from dynslam_cli.readahead import ForkedFrontEnd, FrontEnd, Rewound, open_front_end
 from dynslam_cli.result import SlamResult
 from dynslam_cli.types import Pose2D, Scan
 from dynslam_formats.source import COMPRESSED_SUFFIXES
@@ -86,14 +86,6 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
         spacing = checked_spacing(log, options, format_name, config, on_phase)
         if spacing is not None and spacing.convincing:
             options = dataclasses.replace(options, beam_step_deg=math.degrees(spacing.own))
-    if prior is not None and log != "-":  # placed from the log's first scans, read apart
-        if on_phase is not None:
-            on_phase("placing the log in the prior map", 0, 0)
-        first_source, _, first_reader = open_log(log, options, format_name)
-        try:
-            prior.place(first_reader.scans())
-        finally:
-            first_source.close()
     elsewhere = (recording_destination(config.record.file, target) if config.record.file
                  else None)
     source, entry, reader = open_log(log, options, format_name)
@@ -105,9 +97,17 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
                                config.record.period_s, config.map, config.laser.min_range_m)
                      if config.record.file else None)
         ticks = array("d")
-        front = open_front_end(reader, source, ScanMeasurer.configured(
-            config.ekf, config.match, config.corners), read_ahead)
+        measure = ScanMeasurer.configured(config.ekf, config.match, config.corners)
+        front: FrontEnd | ForkedFrontEnd | Rewound = open_front_end(reader, source, measure,
+                                                                    read_ahead)
+        forked = isinstance(front, ForkedFrontEnd)
         try:
+            if prior is not None:  # placed from the log's first scans, then run over them
+                if on_phase is not None:
+                    on_phase("placing the log in the prior map", 0, 0)
+                front = Rewound(front)
+                prior.place((scan, m.motion if measure.matches else None)
+                            for scan, m in front.take())
             def on_scan(i: int, scan: Any, slam: Any) -> None:
                 ticks.append(time.perf_counter())
                 if on_progress is not None and i % 20 == 0:
@@ -165,8 +165,7 @@ def process_log(log: str, target: Path, force: bool, options: Any, config: Confi
             "wall_time_s": round(time.perf_counter() - start, 3),
             "scan_time_ms": _scan_times(ticks),
             "peak_rss_mb": _peak_rss_mb(children=False),
-            "peak_rss_mb_read_ahead": (_peak_rss_mb(children=True)
-                                       if isinstance(front, ForkedFrontEnd) else None),
+            "peak_rss_mb_read_ahead": _peak_rss_mb(children=True) if forked else None,
         }
         if on_phase is not None:
             on_phase("writing the outputs", 0, 0)

@@ -24,7 +24,7 @@ import numpy as np
 from dynslam_cli.errors import InputError
 from dynslam_cli.geometry import compose, inverse, transform_points
 from dynslam_cli.localization.backend import PriorWalls
-from dynslam_cli.localization.frontend import ScanMeasurer
+from dynslam_cli.localization.frontend import Motion, ScanMeasurer
 from dynslam_cli.localization.globalsearch import (
     BlurredMap,
     MapField,
@@ -172,12 +172,13 @@ class PriorSession:
         """The scan's odometry in the prior's frame. The first scan of the run is the log's
         first: placed already (:meth:`place`), or now from itself alone."""
         if self._frame is None:
-            start = self._start if self._start is not None else self.place([scan])
+            start = self._start if self._start is not None else self.place([(scan, None)])
             self._frame = compose(start, inverse(scan.odom))
         return compose(self._frame, scan.odom)
 
-    def place(self, scans: Iterable[Scan]) -> Pose2D:
-        """Where the first of ``scans`` (the log's first scans, read for this alone) lies in
+    def place(self, scans: Iterable[tuple[Scan, Motion | None]]) -> Pose2D:
+        """Where the first of ``scans`` (the log's first scans, each with the motion the
+        front end measured, or None to scan-match them here) lies in
         the prior map: from it alone, or where that fits more than one place (a corridor),
         from it and the scans driven after it, put together by the front end's scan matching
         (wheel odometry alone turns 7-11° wrong within 2 m on MIT CSAIL), tried again at
@@ -193,8 +194,9 @@ class PriorSession:
         found: Placement | None = None  # the last search's, from where it was ...
         searched, evidence, tried_m = "", 0.0, 0.0  # ... and driven how far
         travel, until, decided = 0.0, math.inf, 0.0
-        for scan in scans:
-            step = measure.motion(scan).increment  # (the first's: from the odometry's origin)
+        for scan, motion in scans:
+            step = (measure.motion(scan) if motion is None else motion).increment  # (the
+            # first's: from the odometry's origin)
             if here is not None:
                 travel += math.hypot(step.x, step.y)
             here = Pose2D() if here is None else compose(here, step)

@@ -18,6 +18,7 @@ import pickle
 import signal
 import sys
 import traceback
+from collections import deque
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, BinaryIO
 
@@ -188,6 +189,49 @@ def _picklable(e: Exception) -> Exception:
     if not isinstance(e, DynslamError):
         e.add_note("in the front-end process:\n" + where)
     return e
+
+
+class Rewound:
+    """A front end whose first scans are taken before the run (to place the log in a prior
+    map from them, :meth:`take`): :meth:`scans` yields those again with their measurements,
+    then the rest, so the log is read and measured once. Same interface as the front end."""
+
+    def __init__(self, front: FrontEnd | ForkedFrontEnd) -> None:
+        self._front = front
+        self._scans = front.scans()
+        self._taken: deque[tuple[Scan, Measurement]] = deque()
+        self._replayed: tuple[Scan, Measurement] | None = None
+
+    @property
+    def stats(self) -> ReadStats:
+        return self._front.stats
+
+    def take(self) -> Iterator[tuple[Scan, Measurement]]:
+        """The scans from the log's start with their measurements, each kept to be yielded
+        again by :meth:`scans` (call before it; stop taking at any scan)."""
+        for scan in self._scans:
+            taken = (scan, self._front.measurement(scan))
+            self._taken.append(taken)
+            yield taken
+
+    def scans(self) -> Iterator[Scan]:
+        while self._taken:
+            self._replayed = self._taken.popleft()
+            yield self._replayed[0]
+        self._replayed = None
+        yield from self._scans
+
+    def measurement(self, scan: Scan) -> Measurement:
+        if self._replayed is not None:
+            assert scan is self._replayed[0], "not the last scan"
+            return self._replayed[1]
+        return self._front.measurement(scan)
+
+    def progress(self) -> tuple[int, int]:
+        return self._front.progress()
+
+    def close(self) -> None:
+        self._front.close()
 
 
 def open_front_end(reader: LogReader, source: Source, measure: ScanMeasurer,

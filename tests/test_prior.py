@@ -138,6 +138,14 @@ def test_a_first_scan_that_fits_anywhere_is_placed_with_the_scans_after_it(
     assert 1.0 < report["driven_m"] <= 12.0
     x, y, deg = report["start"]
     assert math.hypot(x - 11.0, y) < 0.1 and abs(math.remainder(deg, 360.0)) < 1.0
+    # the same log on standard input is placed the same way, from the same scans
+    result = cli("process", "-", "--prior", tmp_path / "first", "-o", tmp_path / "piped", "-q",
+                 input=log2.read_bytes())
+    assert result.exit_code == 0, result.output
+    piped = json.loads((tmp_path / "piped" / "summary.json").read_text())["localization"]
+    assert piped["prior"]["start"] == report["start"]
+    assert (tmp_path / "piped" / "trajectory.tum").read_bytes() == (
+        tmp_path / "o" / "trajectory.tum").read_bytes()
 
 
 def test_an_initial_pose_far_off_is_corrected_by_the_whole_map(tmp_path: Path, cli,

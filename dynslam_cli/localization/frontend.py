@@ -82,6 +82,11 @@ class ScanMeasurer:
         return cls(match if filtered and match.enabled else None, ekf.noise,
                    corners if filtered else None)
 
+    @property
+    def matches(self) -> bool:
+        """Whether the motion is scan-matched (not the wheel odometry's)."""
+        return self._matcher is not None
+
     def __call__(self, scan: Scan) -> Measurement:
         corners = observe_corners(scan, self._corners) if self._corners is not None else []
         return Measurement(self.motion(scan), corners)
