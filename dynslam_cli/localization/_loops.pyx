@@ -95,6 +95,62 @@ def lattice_scores(const float[:, ::1] grid, const Py_ssize_t[:, ::1] dr,
     return out
 
 
+def spline_mean(const double[:, ::1] coef, const double[:, ::1] pts, double x, double y,
+                double theta, double ox, double oy, double res):
+    """The mean, over the points ``pts`` (N×2) placed at pose (x, y, θ), of the cubic
+    B-spline whose coefficients are ``coef`` (cell (0, 0) centred on (ox, oy); coefficients
+    off the grid are 0), and its gradient in (x, y, θ): (mean, d/dx, d/dy, d/dθ)."""
+    cdef Py_ssize_t n = pts.shape[0], nr = coef.shape[0], nc = coef.shape[1], k, i, j, r, c
+    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, tu, tv, f, fu, fv, w
+    cdef double acc = 0.0, gx = 0.0, gy = 0.0, gt = 0.0
+    cdef double wu[4]
+    cdef double wv[4]
+    cdef double du[4]
+    cdef double dv[4]
+    if n == 0:
+        return 0.0, 0.0, 0.0, 0.0
+    with nogil:
+        for k in range(n):
+            px = x + ct * pts[k, 0] - st * pts[k, 1]
+            py = y + st * pts[k, 0] + ct * pts[k, 1]
+            u = (px - ox) / res
+            v = (py - oy) / res
+            c = <Py_ssize_t>floor(u)
+            r = <Py_ssize_t>floor(v)
+            _bspline3(u - c, wu, du)
+            _bspline3(v - r, wv, dv)
+            f = 0.0
+            fu = 0.0
+            fv = 0.0
+            for i in range(4):
+                if 0 <= r - 1 + i < nr:
+                    for j in range(4):
+                        if 0 <= c - 1 + j < nc:
+                            w = coef[r - 1 + i, c - 1 + j]
+                            f = f + w * wv[i] * wu[j]
+                            fu = fu + w * wv[i] * du[j]
+                            fv = fv + w * dv[i] * wu[j]
+            acc = acc + f
+            gx = gx + fu
+            gy = gy + fv
+            gt = gt + (-(py - y) * fu + (px - x) * fv)
+    return acc / n, gx / (n * res), gy / (n * res), gt / (n * res)
+
+
+cdef inline void _bspline3(double t, double* w, double* d) noexcept nogil:
+    """The cubic B-spline's weights of the four coefficients around a point t (0-1) past
+    the second of them, and their derivatives in t."""
+    cdef double s = 1.0 - t
+    w[0] = s * s * s / 6.0
+    w[1] = (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0
+    w[2] = (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0
+    w[3] = t * t * t / 6.0
+    d[0] = -0.5 * s * s
+    d[1] = 0.5 * (3.0 * t * t - 4.0 * t)
+    d[2] = 0.5 * (-3.0 * t * t + 2.0 * t + 1.0)
+    d[3] = 0.5 * t * t
+
+
 cdef inline double _cell(const double[:, ::1] grid, Py_ssize_t r, Py_ssize_t c) noexcept nogil:
     """A cell's value; 0 off the grid."""
     if r < 0 or c < 0 or r >= grid.shape[0] or c >= grid.shape[1]:

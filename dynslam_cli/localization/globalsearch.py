@@ -341,23 +341,22 @@ class BlurredMap:
 
     def refine(self, points: np.ndarray, pose: Pose2D, shift_m: float, turn: float) -> Pose2D:
         """The pose within ``shift_m`` and ``turn`` (radians) of ``pose`` at which the end
-        points (N×2, robot frame) lie best on the blurred map (Powell's method on its
-        cubic-spline interpolation); ``pose`` where none does better."""
-        from scipy.ndimage import map_coordinates
+        points (N×2, robot frame) lie best on the blurred map: the mean of its cubic-spline
+        interpolation at them, maximized by L-BFGS-B on its exact gradient; ``pose`` where
+        none does better."""
         from scipy.optimize import minimize
 
+        pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
         res, (ox, oy) = self.resolution, self.origin
 
-        def cost(v: np.ndarray) -> float:
-            px, py = transform_points(Pose2D(pose.x + v[0], pose.y + v[1], pose.theta + v[2]),
-                                      points).T
-            return -float(np.mean(map_coordinates(self._spline, [(py - oy) / res,
-                                                                 (px - ox) / res],
-                                                  order=3, mode="constant", prefilter=False)))
+        def cost(v: np.ndarray) -> tuple[float, np.ndarray]:
+            mean, *grad = _loops.spline_mean(self._spline, pts, pose.x + v[0], pose.y + v[1],
+                                             pose.theta + v[2], ox, oy, res)
+            return -mean, -np.array(grad)
 
         bounds = [(-shift_m, shift_m), (-shift_m, shift_m), (-turn, turn)]
-        best = minimize(cost, np.zeros(3), method="Powell", bounds=bounds,
-                        options={"xtol": 1e-4, "ftol": 1e-9})
-        v = best.x if best.fun <= cost(np.zeros(3)) else np.zeros(3)
+        best = minimize(cost, np.zeros(3), jac=True, method="L-BFGS-B", bounds=bounds,
+                        options={"ftol": 1e-12, "gtol": 1e-9})
+        v = best.x if best.fun <= cost(np.zeros(3))[0] else np.zeros(3)
         return Pose2D(float(pose.x + v[0]), float(pose.y + v[1]),
                       float(math.remainder(pose.theta + v[2], math.tau)))
