@@ -17,6 +17,11 @@ def run() -> None:
 
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not if ignored
         signal.signal(signal.SIGINT, interrupted)
+    if "OPENBLAS_NUM_THREADS" not in os.environ and "OMP_NUM_THREADS" not in os.environ:
+        # numpy's OpenBLAS otherwise runs a thread per core in every call, and small
+        # calls in a loop (L-BFGS-B's in the prior's refinement: 20x slower) wait on
+        # threads that the read-ahead process (dynslam_cli.readahead) keeps off the core
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
     from dynslam_cli.cli import main
 
     main()
