@@ -4,7 +4,8 @@ alone (dynslam_cli.localization.frontend), read and measured in a second process
 Reading the log and measuring depend on nothing the filter, the pose graph or the maps
 compute, so on Linux (:func:`can_fork`) :class:`ForkedFrontEnd` does both in a forked child
 process on another core and sends the scans with their measurements through a pipe, in log
-order, a batch at a time; this process runs the rest. The results are those of one process,
+order, a batch at a time, which a thread of this process takes off the pipe as they come;
+this process runs the rest. The results are those of one process,
 byte for byte. An error in the child (a malformed line, say) is raised here once the scans
 before it have been processed, as it would be without the child. :class:`FrontEnd` does the
 same work in this process.
@@ -15,12 +16,14 @@ from __future__ import annotations
 import contextlib
 import os
 import pickle
+import queue
 import signal
 import sys
+import threading
 import traceback
 from collections import deque
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from dynslam_cli.errors import DynslamError
 from dynslam_cli.localization.frontend import Measurement, ScanMeasurer
@@ -32,6 +35,7 @@ if TYPE_CHECKING:
 
 BATCH = 16  # scans per message from the child
 PIPE_BYTES = 1 << 20
+QUEUE_BATCHES = 64  # messages taken off the pipe ahead of their use (1024 scans)
 
 
 class FrontEnd:
@@ -90,15 +94,37 @@ class ForkedFrontEnd:
             _child(FrontEnd(reader, source, measure), write_end)
         os.close(write_end)
         self._pipe: BinaryIO | None = os.fdopen(read_end, "rb")
+        self._batches: queue.Queue[tuple[str, Any]] = queue.Queue(QUEUE_BATCHES)
+        self._stop = threading.Event()
+        self._drain = threading.Thread(target=self._drain_pipe, args=(self._pipe,),
+                                       name="dynslam-read-ahead", daemon=True)
+        self._drain.start()
 
-    def scans(self) -> Iterator[Scan]:
-        assert self._pipe is not None
+    def _drain_pipe(self, pipe: BinaryIO) -> None:
+        """Take the child's messages off the pipe as they come, into a queue of
+        QUEUE_BATCHES (this thread): while this process is busy elsewhere (placing the log
+        in a prior map, a loop closure), the child goes on rather than wait on a full pipe.
+        Ends after the last message, or ("eof", None) if the child ended without one."""
         while True:
             try:
-                kind, payload = pickle.load(self._pipe)
-            except EOFError:
+                message = pickle.load(pipe)
+            except Exception:  # EOFError, or a message cut off: the child has gone
+                message = ("eof", None)
+            while not self._stop.is_set():
+                try:
+                    self._batches.put(message, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+            if message[0] != "scans" or self._stop.is_set():
+                return
+
+    def scans(self) -> Iterator[Scan]:
+        while True:
+            kind, payload = self._batches.get()
+            if kind == "eof":
                 raise RuntimeError(f"the front-end process ended unexpectedly "
-                                   f"({self._reap()})") from None
+                                   f"({self._reap()})")
             if kind == "scans":
                 scans, self._measurements, self._progress = payload
                 self._scans = scans
@@ -118,13 +144,17 @@ class ForkedFrontEnd:
         return self._progress
 
     def close(self) -> None:
-        if self._pipe is not None:
-            self._pipe.close()
-            self._pipe = None
+        """Stop the child if it still runs, and the thread that takes its messages (it
+        ends on the pipe's end), then close the pipe: no thread is left running."""
+        self._stop.set()
         if self._running:
             with contextlib.suppress(ProcessLookupError):  # stopped, if it still runs
                 os.kill(self._pid, signal.SIGKILL)
             self._reap()
+        self._drain.join()
+        if self._pipe is not None:
+            self._pipe.close()
+            self._pipe = None
 
     def _reap(self) -> str:
         """Wait for the child to end (once: its process id may be reused after)."""
