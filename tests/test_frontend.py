@@ -114,3 +114,34 @@ def test_the_progress_bar_starts_no_thread():
     with _progress_bar()(total=3, file=io.StringIO()) as bar:
         bar.update(1)
         assert threading.active_count() == before
+
+
+def test_the_child_reads_ahead_while_this_process_is_busy(tmp_path):
+    """Batches are taken off the pipe as they come: a log of 4 MB of scans is read to its
+    end while this process takes none of them (a pipe holds 1 MiB), and closing leaves no
+    thread behind (the next log of a batch can read ahead too)."""
+    import threading
+    import time
+
+    log = tmp_path / "long.log"
+    log.write_text("".join(flaser(n=720, r=3.0, pose=(0.001 * k, 0.0, 0.0), t=1.0 + 0.1 * k)
+                           for k in range(700)))
+    threads = threading.active_count()
+    source, _, reader = open_log(str(log), ReaderOptions())
+    front = ForkedFrontEnd(reader, source, ScanMeasurer(None, Config().ekf.noise, None))
+    try:
+        deadline = time.monotonic() + 20.0
+        while _state(front._pid) != "Z":  # until the child has sent all and ended
+            assert time.monotonic() < deadline, "the child waits on a full pipe"
+            time.sleep(0.05)
+        assert sum(1 for _ in front.scans()) == 700
+    finally:
+        front.close()
+        source.close()
+    assert threading.active_count() == threads
+
+
+def _state(pid: int) -> str:
+    """A process's state letter (Linux): R, S, ... or Z once it has ended, not yet reaped."""
+    with open(f"/proc/{pid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0]
