@@ -605,8 +605,12 @@ class ScanMatcher:
                 pts = pts[standing]
         refined = icp(reference, pts, post.pose, cfg.icp, np.sqrt(np.diag(post.cov)))
         d = pose_difference(refined.pose, post.pose)
+        relax = relax and not _outside(refined.pose, guess, window,  # (and it stays there)
+                                       cfg.correlative.window_sigmas)
         if (not self._fits(refined.share, refined.pose, pts, relax) or refined.rms > cfg.max_rms_m
                 or d @ np.linalg.solve(post.cov, d) > REFINE_CHI2):
+            if post.score < cfg.min_inliers:  # (taken for what the local map saw: only
+                return Placed(guess, "fallback")  # as refined within the window)
             return Placed(post.pose, source, post.cov, agrees)
         self.fit_rms = refined.rms
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
