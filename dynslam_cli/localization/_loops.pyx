@@ -101,7 +101,7 @@ def spline_mean(const double[:, ::1] coef, const double[:, ::1] pts, double x, d
     B-spline whose coefficients are ``coef`` (cell (0, 0) centred on (ox, oy); coefficients
     off the grid are 0), and its gradient in (x, y, θ): (mean, d/dx, d/dy, d/dθ)."""
     cdef Py_ssize_t n = pts.shape[0], nr = coef.shape[0], nc = coef.shape[1], k, i, j, r, c
-    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, tu, tv, f, fu, fv, w
+    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, f, fu, fv, w
     cdef double acc = 0.0, gx = 0.0, gy = 0.0, gt = 0.0
     cdef double wu[4]
     cdef double wv[4]
