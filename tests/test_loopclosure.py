@@ -223,6 +223,33 @@ def test_a_corridor_closure_ties_across_the_corridor_and_never_along_it():
     assert across @ info @ across > 1.0 / 0.2 ** 2 and info[2, 2] > 1.0 / math.radians(5) ** 2
 
 
+def test_corridor_axis_walls_frees_along_the_corridor_even_where_a_niche_pins_it():
+    """[loop] corridor_axis = "walls": a corridor match whose search a door niche pinned
+    along the corridor ("ambiguity" keeps that) enters with no information along it, as
+    firm across it and in heading as before."""
+    walls = np.array([[-20, -1, 20, -1], [-20, 1, 2, 1], [2, 1, 2, 1.4], [2, 1.4, 3, 1.4],
+                      [3, 1.4, 3, 1], [3, 1, 20, 1]], float)
+
+    def points_within(reach: float) -> np.ndarray:
+        r, _ = ray_cast(Pose2D(), ANGLES, walls, np.zeros(len(walls), int), np.zeros((0, 3)),
+                        np.zeros(0, int), 20.0)
+        return scan_points(Scan(0.0, r, ANGLES, 20.0, Pose2D()), reach)
+
+    field = likelihood_field(points_within(20.0))
+    near, guess = points_within(6.0), Pose2D(0.3, 0.1, 0.02)
+    along, across = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    infos = {}
+    for axis in ("ambiguity", "walls"):
+        closer = BackEnd(LoopConfig(corridor_closures=True, corridor_axis=axis), NoiseModel())
+        pose, infos[axis], _ = closer._match(lambda: field, near, guess, 2.0, 10.0)
+        assert abs(pose.x) < 0.05 and abs(pose.y) < 0.03  # (the niche found either way)
+    assert along @ infos["ambiguity"] @ along > 1.0 / 0.3 ** 2  # (the niche pins it)
+    assert along @ infos["walls"] @ along < 1.0 / 10.0 ** 2  # (σ over 10 m: none)
+    for k in (1, 2):
+        assert infos["walls"][k, k] == pytest.approx(infos["ambiguity"][k, k], rel=0.01)
+    assert across @ infos["walls"] @ across > 1.0 / 0.2 ** 2
+
+
 def test_a_wall_the_old_submap_never_saw_does_not_slide_the_match():
     """A corridor's end wall, seen now by a robot facing it and never by the old scans
     (they faced away): scored everywhere, the points beside it slide the match 1 m along

@@ -56,6 +56,7 @@ from dynslam_cli.localization.loopmatch import (
     constraint_ratio,
     correlative_match,
     likelihood_field,
+    weakest_axis,
 )
 from dynslam_cli.localization.scanmatch import (
     icp,
@@ -306,10 +307,15 @@ class BackEnd:
             return None
         spread, axes = np.linalg.eigh(match.cov[:2, :2])
         ambiguous = spread[1] > cfg.max_ambiguity_m ** 2
+        free = axes[:, 1]  # (the field's frame: the old node's)
         if corridor:
             ambiguous |= match.censored
             if spread[0] > cfg.max_ambiguity_m ** 2:
                 return None  # it could be anywhere: not a corridor
+            if cfg.corridor_axis == "walls":
+                ambiguous = True
+                free = transform_points(Pose2D(0.0, 0.0, match.pose.theta),
+                                        weakest_axis(query)[None])[0]
         elif ambiguous:
             return None
         refined = icp(field.index, query, match.pose, cfg.icp,
@@ -318,7 +324,7 @@ class BackEnd:
             return None
         info = np.linalg.inv(match.cov + np.diag([cfg.edge_sigma_m ** 2] * 2 + [1e-6]))
         if ambiguous:
-            info = without_direction(info, axes[:, 1])
+            info = without_direction(info, free)
         return refined.pose, info, query
 
     def _close(self, closure: Closure, k: int) -> bool:

@@ -91,9 +91,20 @@ def constraint_ratio(points: np.ndarray) -> float:
     """How well a set of points pins down a position, weakest direction over strongest
     (eigenvalues of the sum of n nᵀ over the points' normals): about 0 for the two walls of a
     corridor, which say nothing about the position along it."""
-    n = PointIndex(points, neighbours=NORMAL_NEIGHBOURS).normals()
-    ev = np.linalg.eigvalsh(n.T @ n)
+    ev = np.linalg.eigvalsh(_normal_scatter(points))
     return float(ev[0] / max(ev[1], 1e-12))
+
+
+def weakest_axis(points: np.ndarray) -> np.ndarray:
+    """The direction (a unit 2-vector, the points' frame) the points pin down least, as
+    :func:`constraint_ratio` weighs them: along a corridor's walls."""
+    return np.linalg.eigh(_normal_scatter(points))[1][:, 0]
+
+
+def _normal_scatter(points: np.ndarray) -> np.ndarray:
+    """The sum of n nᵀ over the points' normals (2×2)."""
+    n = PointIndex(points, neighbours=NORMAL_NEIGHBOURS).normals()
+    return n.T @ n
 
 
 @dataclass(frozen=True)
