@@ -586,6 +586,32 @@ class IcpConfig:
     -> 0.0969 (22%). Weighing the solve alone and not the information: Intel 0.1198, Intel
     bag 0.1780."""
 
+    segments: bool = False
+    """A point pairs with a reference point's line only beside it, as far along it as the
+    neighbours that gave its normal reach (point to segment), not on the line's extension
+    past its last point: the end of a wall the local map has seen so far (where its key
+    scans' reach ends; a far wall seen at a grazing angle as points a metre apart) does not
+    pull the scan's points that lie beyond it back onto it (a pair there has a residual of
+    its offset along the wall times its normal's tilt, whose pull on the match points to
+    the wall's end whichever way the normal tilts). Off: it mends the office world and
+    loses the Radish logs. Measured at daae04a -> with it (the front end's ICP), this
+    machine, one run each: the office with perfect odometry (seed 0, pose graph off, the
+    odometry's scale not learned), ICP's own shortfall of each 8 cm step 0.155 -> 0.065 mm
+    (the search 0.31 mm short either way); worlds, pose graph on, seeds 0 / 1 / 2, ATE m,
+    true odometry: office 0.0920 / 0.0682 / 0.0498 -> 0.0378 / 0.0440 / 0.0558, hall
+    0.0038 / 0.0035 / 0.0043 -> 0.0035 / 0.0051 / 0.0050, crowd 0.0107 / 0.0067 / 0.0104
+    -> 0.0085 / 0.0088 / 0.0109, wards 0.0057 / 0.0060 / 0.0063 -> 0.0068 / 0.0070 /
+    0.0064; drifting: office 0.1110 / 0.1225 / 0.0517 -> 0.1084 / 0.0495 / 0.0749, hall
+    0.0038 / 0.0050 / 0.0367 -> 0.0039 / 0.0049 / 0.0049, crowd 0.0069 / 0.0065 / 0.0062
+    -> 0.0169 / 0.0112 / 0.0090 (its map stretched about 2% along x), corridors and arena
+    within 2 mm (geometric mean of the 36 ratios 0.963); relations, local / full, MIT
+    0.0384 / 0.0266 -> 0.0452 / 0.0262, Intel 0.0908 / 0.0138 -> 0.0727 / 0.0141, FR079
+    0.0724 / 0.0650 -> 0.0707 / 0.0649, Intel bag 0.0645 / 0.0142 -> 0.0790 / 0.0146, FR079
+    bag 0.0763 / 0.0621 -> 0.0733 / 0.0623; Radish (seed 0) 29 of 39 rows at or below the
+    better peer (28), but the geometric mean of the 39 ratios 1.107 (freiburg-campus
+    moderate 0.84 -> 13.4 m, edmonton perfect 0.541 -> 0.723; orebro moderate 0.240 ->
+    0.132, seattle moderate 0.065 -> 0.040) (bench/configs/segments.toml)."""
+
     def check(self) -> None:
         require([(self.iterations >= 1, "icp.iterations must be >= 1"),
                  (0 < self.min_correspondence_m <= self.max_correspondence_m,

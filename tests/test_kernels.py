@@ -91,6 +91,25 @@ def test_pairs_on_a_thick_wall_weigh_less_with_thickness_weights():
     assert y_information(thick, True) < 0.5 * y_information(thick, False)
 
 
+def test_a_ledge_beyond_a_walls_last_point_pairs_only_without_segments():
+    """Two walls at a right angle seen before (to x = 3 m along y = 0), and now also a ledge
+    6 cm in front of the first wall's line, beyond its last point: paired with that point,
+    the ledge turns and moves the match; with ``segments`` (point to segment) it has no
+    pair and the match stays exactly where the walls put it."""
+    x = np.arange(0.0, 3.001, 0.02)
+    walls = np.vstack((np.column_stack((x, 0 * x)), np.column_stack((0 * x, x))))
+    ledge = np.column_stack((np.arange(3.04, 3.49, 0.02), np.full(23, 0.06)))
+    index = PointIndex(walls, neighbours=8)
+
+    def pose(segments: bool) -> np.ndarray:
+        out = _match.icp(index, np.vstack((walls, ledge)), 0.0, 0.0, 0.0, 24, 0.5, 0.1,
+                         0, 0, 0, 0.02, 1e-4, 1e-5, False, segments)
+        return np.array(out[:3])
+
+    assert np.abs(pose(True)).max() < 1e-9
+    assert abs(pose(False)[2]) > math.radians(0.01)
+
+
 def test_traced_cells_match_sampling_each_beam_every_cell():
     g = GridStack(0.05, 1.0, ("static",))
     n = 361

@@ -43,6 +43,8 @@ cdef class PointIndex:
     cdef double gap2
     cdef double[:, ::1] nrm  # each point's normal, where ...
     cdef double[::1] thick  # ... and its neighbours' spread along it (variance, m²) ...
+    cdef double[::1] t_lo  # ... and how far they reach along its line, each way (m) ...
+    cdef double[::1] t_hi
     cdef u8[::1] has_nrm  # ... computed
 
     def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6,
@@ -57,6 +59,8 @@ cdef class PointIndex:
         self.gap2 = gap * gap
         self.nrm = np.zeros((n, 2))
         self.thick = np.zeros(n)
+        self.t_lo = np.zeros(n)
+        self.t_hi = np.zeros(n)
         self.has_nrm = np.zeros(n, dtype=np.uint8)
         if n == 0:
             self.x0 = self.y0 = 0.0
@@ -184,6 +188,11 @@ cdef class PointIndex:
         self.thick[i] = (sxx * self.nrm[i, 0] * self.nrm[i, 0]
                          + 2.0 * sxy * self.nrm[i, 0] * self.nrm[i, 1]
                          + syy * self.nrm[i, 1] * self.nrm[i, 1]) / kk
+        for m in range(kk):  # (along the line: the tangent (-ny, nx); the point itself at 0)
+            a = ((self.pts[iv[m], 1] - self.pts[i, 1]) * self.nrm[i, 0]
+                 - (self.pts[iv[m], 0] - self.pts[i, 0]) * self.nrm[i, 1])
+            self.t_lo[i] = min(self.t_lo[i], a)
+            self.t_hi[i] = max(self.t_hi[i], a)
 
     def query(self, points, double bound):
         """Nearest-point index of each query point (-1 where none is closer than bound)."""
@@ -226,18 +235,21 @@ cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
 
 def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double gth,
         int iterations, double gate_max, double gate_min, double wx, double wy, double wth,
-        double sigma, double step_m, double step_rad, bint thickness=False):
+        double sigma, double step_m, double step_rad, bint thickness=False,
+        bint segments=False):
     """Point-to-line ICP (see scanmatch.icp): the gate shrinks over the iterations; converged
     (a step of under step_m in |x| + |y| and step_rad in θ) at a wider gate, it goes on at
     the narrowest until converged there (the answer is then the narrow gate's, outliers
     left out). Returns (x, y, θ, share, rms, ok, h): h is the Huber-weighted Σ J Jᵀ of the
     pairs of the last iteration (3×3, the prior left out). The reference points' normals
-    are the index's."""
+    are the index's. With ``segments`` a point pairs only where it falls beside its
+    reference point's line as far as that point's neighbours reach (point to segment), not
+    on the line's extension past its last point."""
     cdef double out[11]
     cdef bint ok
     with nogil:
         ok = _icp(index, pts, gx, gy, gth, iterations, gate_max, gate_min, wx, wy,
-                  wth, sigma, step_m, step_rad, thickness, out)
+                  wth, sigma, step_m, step_rad, thickness, segments, out)
     h = np.zeros((3, 3))
     if not ok:
         return gx, gy, gth, 0.0, INFINITY, False, h
@@ -250,9 +262,9 @@ def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double
 cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
                double gth, int iterations, double gate_max, double gate_min, double wx,
                double wy, double wth, double sigma, double step_m, double step_rad,
-               bint thickness, double out[11]) noexcept nogil:
+               bint thickness, bint segments, double out[11]) noexcept nogil:
     cdef Py_ssize_t n = pts.shape[0], i, j, used
-    cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy
+    cdef double x = gx, y = gy, th = gth, gate, c, s, px, py, nx, ny, r, w, dpx, dpy, t
     cdef double share = 0.0, rms = INFINITY, sq
     cdef double a[3][3]
     cdef double b[3]
@@ -282,6 +294,10 @@ cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
             ny = index.nrm[j, 1]
             if nx == 0.0 and ny == 0.0:  # (a point on no line: no pair)
                 continue
+            if segments:  # (beyond the line's last point: no pair)
+                t = (py - index.pts[j, 1]) * nx - (px - index.pts[j, 0]) * ny
+                if t < index.t_lo[j] or t > index.t_hi[j]:
+                    continue
             used += 1
             r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
             dpx = -s * pts[i, 0] - c * pts[i, 1]

@@ -136,7 +136,7 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
     x, y, th, share, rms, ok, h = _match.icp(
         ref, np.ascontiguousarray(pts), guess.x, guess.y, guess.theta,
         cfg.iterations, cfg.max_correspondence_m, cfg.min_correspondence_m, *prior,
-        RESIDUAL_SIGMA_M, *CONVERGED_STEP, cfg.thickness_weights)
+        RESIDUAL_SIGMA_M, *CONVERGED_STEP, cfg.thickness_weights, cfg.segments)
     if not ok:
         return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
     used = max(share * len(pts), 1.0)
