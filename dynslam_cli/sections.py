@@ -779,7 +779,23 @@ class MatchConfig:
     office lose; with no-return beams free to the laser's reach, seeds 0-2, geometric
     mean of the 15 ATEs 0.0319 -> 0.0603), relations MIT
     0.0632 -> 0.0672, Intel 0.1115 -> 0.1276, FR079 0.0731 -> 0.0744; MIT 1.27x the
-    wall time (five pairs run in turn, 8.02 against 6.30 s)."""
+    wall time (five pairs run in turn, 8.02 against 6.30 s). Measured again at 1bcc5af
+    (stop 67), off -> on, one run each: worlds, pose graph on, seeds 0 / 1 / 2, ATE m,
+    true odometry office 0.0920 / 0.0682 / 0.0498 -> 0.0568 / 0.0490 / 0.0755, crowd
+    0.0107 / 0.0067 / 0.0104 -> 0.0098 / 0.0062 / 0.0065, the rest within 0.6 mm;
+    drifting office 0.1110 / 0.1225 / 0.0517 -> 0.0629 / 0.0596 / 0.0498, hall 0.0038 /
+    0.0050 / 0.0367 -> 0.0041 / 0.0037 / 0.0059, crowd 0.0069 / 0.0065 / 0.0062 -> 0.0079 /
+    0.0068 / 0.0073 (geometric mean of the 36 ratios 0.889); the crowd's steps (exact
+    odometry, pose graph off, scale not learned) +0.127 -> +0.033 mm long: the walkers'
+    trail no longer pulls; relations, local / full, MIT 0.0384 / 0.0266 -> 0.0498 /
+    0.0264, Intel 0.0908 / 0.0138 -> 0.0504 / 0.0140, FR079 0.0724 / 0.0650 -> 0.0735 /
+    0.0649, Intel bag 0.0645 / 0.0142 -> 0.0764 / 0.0144, FR079 bag 0.0763 / 0.0621 ->
+    0.0770 / 0.0623; five perturbed copies, local, median (spread): MIT 0.0390 (22%) ->
+    0.0352 (20%), Intel 0.0739 (17%) -> 0.0770 (31%); Radish (seed 0) 29 of 39 rows at or
+    below the better peer (28), geometric mean of the 39 ratios 1.073 (0.983 without
+    freiburg-campus moderate 0.84 -> 11.4 m and harsh 15.0 -> 32.6). Still off: Intel's
+    copies spread past issue 36's 20% and the campus breaks (bench/configs/
+    clear_seen_through.toml)."""
     skip_seen_free: bool = True
     """ICP refines the correlative search's pose without the scan's end points that land,
     at that pose, where ``seen_free_views`` key scans of the local map saw through
