@@ -43,9 +43,10 @@ cdef class PointIndex:
     cdef double gap2
     cdef double[:, ::1] nrm  # each point's normal, where ...
     cdef double[::1] thick  # ... and its neighbours' spread along it (variance, m²) ...
-    cdef double[::1] t_lo  # ... and how far they reach along its line, each way (m) ...
-    cdef double[::1] t_hi
     cdef u8[::1] has_nrm  # ... computed
+    cdef double[::1] t_lo  # how far its neighbours reach along its line, each way (m) ...
+    cdef double[::1] t_hi
+    cdef u8[::1] has_ext  # ... computed (ICP with ``segments`` alone asks)
 
     def __init__(self, points, double cell=0.25, Py_ssize_t neighbours=6,
                  double gap=INFINITY):
@@ -62,6 +63,7 @@ cdef class PointIndex:
         self.t_lo = np.zeros(n)
         self.t_hi = np.zeros(n)
         self.has_nrm = np.zeros(n, dtype=np.uint8)
+        self.has_ext = np.zeros(n, dtype=np.uint8)
         if n == 0:
             self.x0 = self.y0 = 0.0
             self.nx = self.ny = 1
@@ -156,15 +158,10 @@ cdef class PointIndex:
         if self.has_nrm[i]:
             return
         cdef Py_ssize_t iv[MAX_NEIGHBOURS]
-        cdef double dv[MAX_NEIGHBOURS]
         cdef Py_ssize_t m, kk
         cdef double mx, my, sxx, syy, sxy, dx, dy, a
         self.has_nrm[i] = 1
-        kk = self._search(self.pts[i, 0], self.pts[i, 1], self.neighbours, INFINITY, iv, dv)
-        m = 2  # (0: the point itself; 1: its nearest, always taken)
-        while m < kk and (dv[m] <= self.gap2 * dv[m - 1] or dv[m - 1] == 0.0):
-            m += 1
-        kk = min(kk, m)
+        kk = self._neighbours(i, iv)
         if kk < MIN_NORMAL_POINTS:
             self.nrm[i, 0] = 0.0
             self.nrm[i, 1] = 0.0
@@ -188,7 +185,30 @@ cdef class PointIndex:
         self.thick[i] = (sxx * self.nrm[i, 0] * self.nrm[i, 0]
                          + 2.0 * sxy * self.nrm[i, 0] * self.nrm[i, 1]
                          + syy * self.nrm[i, 1] * self.nrm[i, 1]) / kk
-        for m in range(kk):  # (along the line: the tangent (-ny, nx); the point itself at 0)
+
+    cdef Py_ssize_t _neighbours(self, Py_ssize_t i, Py_ssize_t* iv) noexcept nogil:
+        """Point i's ``neighbours`` nearest points this side of a gap, itself first, into
+        iv: how many."""
+        cdef double dv[MAX_NEIGHBOURS]
+        cdef Py_ssize_t kk = self._search(self.pts[i, 0], self.pts[i, 1], self.neighbours,
+                                          INFINITY, iv, dv)
+        cdef Py_ssize_t m = 2  # (0: the point itself; 1: its nearest, always taken)
+        while m < kk and (dv[m] <= self.gap2 * dv[m - 1] or dv[m - 1] == 0.0):
+            m += 1
+        return min(kk, m)
+
+    cdef void _extent(self, Py_ssize_t i) noexcept nogil:
+        """How far point i's normal's neighbours reach along its line (the tangent (-ny,
+        nx)), each way from it, into t_lo[i] and t_hi[i], unless they are there: asked by
+        ICP with ``segments`` alone (after the normal)."""
+        if self.has_ext[i]:
+            return
+        cdef Py_ssize_t iv[MAX_NEIGHBOURS]
+        cdef Py_ssize_t m, kk
+        cdef double a
+        self.has_ext[i] = 1
+        kk = self._neighbours(i, iv)
+        for m in range(kk):  # (the point itself at 0)
             a = ((self.pts[iv[m], 1] - self.pts[i, 1]) * self.nrm[i, 0]
                  - (self.pts[iv[m], 0] - self.pts[i, 0]) * self.nrm[i, 1])
             self.t_lo[i] = min(self.t_lo[i], a)
@@ -295,6 +315,7 @@ cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
             if nx == 0.0 and ny == 0.0:  # (a point on no line: no pair)
                 continue
             if segments:  # (beyond the line's last point: no pair)
+                index._extent(j)
                 t = (py - index.pts[j, 1]) * nx - (px - index.pts[j, 0]) * ny
                 if t < index.t_lo[j] or t > index.t_hi[j]:
                     continue
