@@ -612,6 +612,32 @@ def test_a_match_of_few_points_is_as_uncertain_as_its_few_pairs():
     assert ratio < 2 * len(pts[::12]) / cfg.icp.effective_pairs
 
 
+def test_a_match_is_as_sure_as_its_own_residuals_say_with_residual_sigma_fit():
+    """With ``residual_sigma = "fit"`` a match's information is counted in its own pairs'
+    scatter: the same room seen by a laser of 3 mm noise and of 25 mm noise, matched on the
+    same clean map, gives the quiet scan several times the information of the noisy one;
+    "stated" counts both in the same 2 cm and tells them apart barely at all."""
+    from dynslam_cli.localization._match import PointIndex
+    from dynslam_cli.localization.scanmatch import icp
+
+    rng = np.random.default_rng(3)
+    clean = robot_points(Pose2D(0.05, 0.02, 0.01))
+    radial = clean / np.linalg.norm(clean, axis=1, keepdims=True)
+    ratios = {}
+    for mode in ("stated", "fit"):
+        cfg = MatchConfig(icp=IcpConfig(residual_sigma=mode))
+        ref = PointIndex(robot_points(Pose2D()), neighbours=cfg.normal_neighbours)
+        info = {}
+        for noise in (0.003, 0.025):
+            pts = clean + radial * rng.normal(0.0, noise, (len(clean), 1))
+            match = icp(ref, pts, Pose2D(), cfg.icp)
+            assert match.share > 0.8
+            info[noise] = np.trace(match.information[:2, :2])
+        ratios[mode] = info[0.003] / info[0.025]
+    assert ratios["fit"] > 4.0
+    assert 0.5 < ratios["stated"] < 2.0
+
+
 def test_a_prior_weighed_as_the_pairs_holds_against_a_few_stray_pairs():
     """Along a long wall only a short stub constrains the match, and ten end points of a
     walker just beside it pair with it. A guess 2 cm sure of itself, weighed against every

@@ -54,6 +54,7 @@ from dynslam_cli.sections import IcpConfig, MatchConfig, NoiseModel
 from dynslam_cli.types import Pose2D, Scan
 
 RESIDUAL_SIGMA_M = 0.02  # expected point-to-line residual of a good match
+MIN_RESIDUAL_SIGMA_M = 0.005  # the least a fit's own residuals are taken to scatter (m)
 # ICP has converged when a step moves the pose less than this (|x| + |y| m, |θ| rad): a
 # millimetre, a tenth of a good match's own error (1-2 cm and 0.1-0.3° a scan on real logs).
 CONVERGED_STEP = (1e-3, 1e-4)
@@ -123,7 +124,8 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
     With ``cfg.thickness_weights`` each pair is weighed by σ² / (σ² + the variance of
     its reference point's neighbours along its normal), in the solve and the information.
 
-    The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M) counted as
+    The information is the pairs' Σ J Jᵀ / σ² (σ = RESIDUAL_SIGMA_M, or with
+    ``cfg.residual_sigma = "fit"`` the pairs' own RMS, at least MIN_RESIDUAL_SIGMA_M) counted as
     ``cfg.effective_pairs`` independent pairs (fewer pairs: as themselves, never as more
     than there are): a direction no tangent line constrains (along a corridor's walls) has
     none."""
@@ -140,8 +142,10 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
     if not ok:
         return IcpResult(guess, 0.0, math.inf, np.zeros((3, 3)))
     used = max(share * len(pts), 1.0)
+    sigma = (max(rms, MIN_RESIDUAL_SIGMA_M) if cfg.residual_sigma == "fit"
+             else RESIDUAL_SIGMA_M)
     return IcpResult(Pose2D(x, y, th), share, rms,
-                     h * (min(cfg.effective_pairs, used) / used) / RESIDUAL_SIGMA_M ** 2)
+                     h * (min(cfg.effective_pairs, used) / used) / sigma ** 2)
 
 
 def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> np.ndarray:
