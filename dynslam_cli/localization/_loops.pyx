@@ -14,6 +14,8 @@ from libc.math cimport (INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, log
                         sin, sqrt)
 from libc.stdlib cimport calloc, free, malloc, realloc
 
+from dynslam_cli.localization._linalg cimport solve3
+
 ctypedef unsigned char u8
 
 
@@ -149,6 +151,173 @@ cdef inline void _bspline3(double t, double* w, double* d) noexcept nogil:
     d[1] = 0.5 * (3.0 * t * t - 4.0 * t)
     d[2] = 0.5 * (-3.0 * t * t + 2.0 * t + 1.0)
     d[3] = 0.5 * t * t
+
+
+cdef inline void _bspline3_curvature(double t, double* w) noexcept nogil:
+    """The second derivatives in t of :func:`_bspline3`'s weights."""
+    w[0] = 1.0 - t
+    w[1] = 3.0 * t - 2.0
+    w[2] = 1.0 - 3.0 * t
+    w[3] = t
+
+
+cdef double _spline_terms(const double[:, ::1] coef, const double[:, ::1] pts, double x,
+                          double y, double theta, double ox, double oy, double res,
+                          double g[3], double h[3][3]) noexcept nogil:
+    """Σ of the cubic B-spline of ``coef`` over ``pts`` placed at (x, y, θ) (as
+    :func:`spline_mean`, not divided by their count); its gradient in (x, y, θ) into
+    ``g``; and into ``h`` Σ Jᵀ C J, C each point's curvature across the surface (the
+    negative of the spline's 2×2 Hessian in x, y with its upward bends set to zero, so h
+    is positive semi-definite: on a wall's ridge, C is the wall's normal's nnᵀ times the
+    ridge's curvature, as a point-to-line pair weighs), J the point's motion in (x, y, θ)."""
+    cdef Py_ssize_t n = pts.shape[0], nr = coef.shape[0], nc = coef.shape[1], k, i, j, r, c
+    cdef Py_ssize_t p, q
+    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, w, f, fu, fv, fuu, fuv, fvv
+    cdef double total = 0.0, a, b, cc, tr, det, disc, l1, l2, e1x, e1y, norm, jx[3], jy[3]
+    cdef double m00, m01, m11
+    cdef double wu[4]
+    cdef double wv[4]
+    cdef double du[4]
+    cdef double dv[4]
+    cdef double su[4]
+    cdef double sv[4]
+    for p in range(3):
+        g[p] = 0.0
+        for q in range(3):
+            h[p][q] = 0.0
+    for k in range(n):
+        px = x + ct * pts[k, 0] - st * pts[k, 1]
+        py = y + st * pts[k, 0] + ct * pts[k, 1]
+        u = (px - ox) / res
+        v = (py - oy) / res
+        c = <Py_ssize_t>floor(u)
+        r = <Py_ssize_t>floor(v)
+        _bspline3(u - c, wu, du)
+        _bspline3(v - r, wv, dv)
+        _bspline3_curvature(u - c, su)
+        _bspline3_curvature(v - r, sv)
+        f = fu = fv = fuu = fuv = fvv = 0.0
+        for i in range(4):
+            if 0 <= r - 1 + i < nr:
+                for j in range(4):
+                    if 0 <= c - 1 + j < nc:
+                        w = coef[r - 1 + i, c - 1 + j]
+                        f += w * wv[i] * wu[j]
+                        fu += w * wv[i] * du[j]
+                        fv += w * dv[i] * wu[j]
+                        fuu += w * wv[i] * su[j]
+                        fuv += w * dv[i] * du[j]
+                        fvv += w * sv[i] * wu[j]
+        total += f
+        fu /= res
+        fv /= res
+        jx[0] = 1.0
+        jx[1] = 0.0
+        jx[2] = -(py - y)
+        jy[0] = 0.0
+        jy[1] = 1.0
+        jy[2] = px - x
+        for p in range(3):
+            g[p] += fu * jx[p] + fv * jy[p]
+        # the curvature C = -Hessian (per m²), its negative eigenvalues set to zero
+        a = -fuu / (res * res)
+        b = -fuv / (res * res)
+        cc = -fvv / (res * res)
+        tr = 0.5 * (a + cc)
+        det = a * cc - b * b
+        disc = sqrt(max(tr * tr - det, 0.0))
+        l1 = tr + disc  # the larger eigenvalue
+        l2 = tr - disc
+        if l1 <= 0.0:
+            continue
+        if l2 >= 0.0:
+            m00, m01, m11 = a, b, cc
+        else:  # l1 e1 e1ᵀ alone
+            if fabs(b) > 1e-12 * (fabs(a) + fabs(cc)):
+                e1x, e1y = b, l1 - a
+            elif a >= cc:
+                e1x, e1y = 1.0, 0.0
+            else:
+                e1x, e1y = 0.0, 1.0
+            norm = e1x * e1x + e1y * e1y
+            m00 = l1 * e1x * e1x / norm
+            m01 = l1 * e1x * e1y / norm
+            m11 = l1 * e1y * e1y / norm
+        for p in range(3):
+            for q in range(3):
+                h[p][q] += (jx[p] * (m00 * jx[q] + m01 * jy[q])
+                            + jy[p] * (m01 * jx[q] + m11 * jy[q]))
+    return total
+
+
+cdef double TAU = 6.283185307179586
+
+
+cdef inline double _prior_cost(double dx, double dy, double dth, double wx, double wy,
+                               double wth) noexcept nogil:
+    """½ (wx dx² + wy dy² + wθ dθ²), dθ wrapped."""
+    dth = remainder(dth, TAU)
+    return 0.5 * (wx * dx * dx + wy * dy * dy + wth * dth * dth)
+
+
+def spline_climb(const double[:, ::1] coef, const double[:, ::1] pts, double sx, double sy,
+                 double sth, double gx, double gy, double gth, double ox, double oy,
+                 double res, double kappa, double wx, double wy, double wth, int iterations,
+                 double step_m, double step_rad):
+    """The pose (x, y, θ), climbing from (sx, sy, sθ), where ``kappa`` × the sum of the cubic
+    B-spline of ``coef`` over ``pts`` (:func:`spline_mean`'s surface), less the prior
+    ½ (wx Δx² + wy Δy² + wθ Δθ²) about (gx, gy, gθ), is highest: Newton's steps on the surface's
+    curvature made positive (:func:`_spline_terms`), each halved until it climbs (at most
+    ten times), until a step moves the pose less than ``step_m`` (|x| + |y|) and
+    ``step_rad``, or ``iterations`` steps. A smooth surface's top moves as little as its
+    points do (no pairing that switches). Returns (x, y, θ, steps, h): h the last pose's
+    kappa Σ Jᵀ C J (3×3)."""
+    cdef double x = sx, y = sy, th = sth, nx, ny, nth, value, trial = 0.0, alpha
+    cdef double g[3]
+    cdef double hh[3][3]
+    cdef double a[3][3]
+    cdef double b[3]
+    cdef double d[3]
+    cdef double gd[3]
+    cdef double hd[3][3]
+    cdef int it, p, q, halvings, steps = 0
+    with nogil:
+        value = (kappa * _spline_terms(coef, pts, x, y, th, ox, oy, res, g, hh)
+                 - _prior_cost(x - gx, y - gy, th - gth, wx, wy, wth))
+        for it in range(iterations):
+            for p in range(3):
+                for q in range(3):
+                    a[p][q] = kappa * hh[p][q]
+            a[0][0] += wx + 1e-9
+            a[1][1] += wy + 1e-9
+            a[2][2] += wth + 1e-9
+            b[0] = kappa * g[0] - wx * (x - gx)
+            b[1] = kappa * g[1] - wy * (y - gy)
+            b[2] = kappa * g[2] - wth * remainder(th - gth, TAU)
+            if not solve3(a, b, d):
+                break
+            alpha = 1.0
+            for halvings in range(11):
+                nx = x + alpha * d[0]
+                ny = y + alpha * d[1]
+                nth = th + alpha * d[2]
+                trial = (kappa * _spline_terms(coef, pts, nx, ny, nth, ox, oy, res, gd, hd)
+                         - _prior_cost(nx - gx, ny - gy, nth - gth, wx, wy, wth))
+                if trial >= value:
+                    break
+                alpha *= 0.5
+            if trial < value:
+                break  # (no step along d climbs: at the top, as far as doubles tell)
+            x, y, th, value = nx, ny, nth, trial
+            steps += 1
+            for p in range(3):
+                g[p] = gd[p]
+                for q in range(3):
+                    hh[p][q] = hd[p][q]
+            if alpha * (fabs(d[0]) + fabs(d[1])) < step_m and alpha * fabs(d[2]) < step_rad:
+                break
+    h = np.array([[kappa * hh[p][q] for q in range(3)] for p in range(3)])
+    return x, y, th, steps, h
 
 
 cdef inline double _cell(const double[:, ::1] grid, Py_ssize_t r, Py_ssize_t c) noexcept nogil:

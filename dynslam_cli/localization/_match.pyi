@@ -19,3 +19,7 @@ def cell_groups(pts: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]: 
 def seen_through_counts(pts: np.ndarray, xs: np.ndarray, ys: np.ndarray, headings: np.ndarray,
                         nearest: np.ndarray, reach: np.ndarray, rear_blind: np.ndarray,
                         offset: float, bin_rad: float, margin: float) -> np.ndarray: ...
+def surface_fit(index: PointIndex, pts: np.ndarray, sx: float, sy: float, sth: float,
+                gx: float, gy: float, gth: float, wx: float, wy: float, wth: float,
+                radius: float, sigma: float, iterations: int, step_m: float,
+                step_rad: float) -> tuple[float, float, float, float, bool, np.ndarray]: ...

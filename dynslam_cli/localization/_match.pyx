@@ -13,6 +13,8 @@ import numpy as np
 from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
 from libc.stdlib cimport calloc, free, malloc, realloc
 
+from dynslam_cli.localization._linalg cimport solve3
+
 ctypedef unsigned char u8
 
 
@@ -223,34 +225,6 @@ cdef class PointIndex:
         for i in range(q.shape[0]):
             o[i] = self.nearest(q[i, 0], q[i, 1], bound)
         return out
-
-
-cdef int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
-    """Gaussian elimination with partial pivoting; 0 if singular."""
-    cdef int i, j, k, p
-    cdef double m, t
-    for i in range(3):
-        p = i
-        for k in range(i + 1, 3):
-            if fabs(a[k][i]) > fabs(a[p][i]):
-                p = k
-        if a[p][i] == 0.0:
-            return 0
-        if p != i:
-            for j in range(3):
-                t = a[i][j]; a[i][j] = a[p][j]; a[p][j] = t
-            t = b[i]; b[i] = b[p]; b[p] = t
-        for k in range(i + 1, 3):
-            m = a[k][i] / a[i][i]
-            for j in range(i, 3):
-                a[k][j] -= m * a[i][j]
-            b[k] -= m * b[i]
-    for i in range(2, -1, -1):
-        t = b[i]
-        for j in range(i + 1, 3):
-            t -= a[i][j] * x[j]
-        x[i] = t / a[i][i]
-    return 1
 
 
 def icp(PointIndex index, const double[:, ::1] pts, double gx, double gy, double gth,
@@ -466,3 +440,122 @@ def seen_through_counts(const double[:, ::1] pts, const double[::1] xs, const do
                 if hypot(dx, dy) < nearest[v, k] - margin:
                     counts[i] += 1
     return counts_arr
+
+
+cdef enum:
+    SURFACE_NEIGHBOURS = 32  # reference points that shape the surface at an end point, at most
+cdef double EDGE_WEIGHT = 0.05  # added to an end point's weights' sum: its pull fades as they do
+
+
+cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x, double y,
+                           double th, double radius, double sigma, double a[3][3],
+                           double b[3], Py_ssize_t* used) noexcept nogil:
+    """At pose (x, y, θ): each end point's distances to its reference points' tangent lines
+    within ``radius``, weighed by (1 − d²/radius²)² of its distance d to each (a weight that
+    fades to nothing, its slope too, where a point leaves the circle) over their sum plus
+    EDGE_WEIGHT, and by Huber's rule at ``sigma``. Returns the cost Σ w ρ(r) (ρ: Huber's);
+    into a and b the normal equations Σ w J Jᵀ and Σ w J r, J the line distance's gradient
+    in (x, y, θ); into used how many end points have a reference point within reach."""
+    cdef Py_ssize_t n = pts.shape[0], i, m, k, j, p, q
+    cdef Py_ssize_t iv[SURFACE_NEIGHBOURS]
+    cdef double dv[SURFACE_NEIGHBOURS]
+    cdef double wv[SURFACE_NEIGHBOURS]
+    cdef double c = cos(th), s = sin(th), px, py, dpx, dpy, r2 = radius * radius, total
+    cdef double cost = 0.0, nx, ny, r, w, jac[3]
+    for p in range(3):
+        b[p] = 0.0
+        for q in range(3):
+            a[p][q] = 0.0
+    used[0] = 0
+    for i in range(n):
+        px = x + c * pts[i, 0] - s * pts[i, 1]
+        py = y + s * pts[i, 0] + c * pts[i, 1]
+        k = index._search(px, py, SURFACE_NEIGHBOURS, r2, iv, dv)
+        total = EDGE_WEIGHT
+        for m in range(k):
+            index._normal(iv[m])
+            if index.nrm[iv[m], 0] == 0.0 and index.nrm[iv[m], 1] == 0.0:
+                wv[m] = 0.0  # (a point on no line)
+            else:
+                wv[m] = (1.0 - dv[m] / r2) * (1.0 - dv[m] / r2)
+            total += wv[m]
+        if total <= EDGE_WEIGHT:
+            continue
+        used[0] += 1
+        dpx = -s * pts[i, 0] - c * pts[i, 1]
+        dpy = c * pts[i, 0] - s * pts[i, 1]
+        for m in range(k):
+            if wv[m] == 0.0:
+                continue
+            j = iv[m]
+            nx = index.nrm[j, 0]
+            ny = index.nrm[j, 1]
+            r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
+            w = wv[m] / total
+            if fabs(r) <= sigma:
+                cost += w * 0.5 * r * r
+            else:
+                cost += w * sigma * (fabs(r) - 0.5 * sigma)
+                w *= sigma / fabs(r)
+            jac[0] = nx
+            jac[1] = ny
+            jac[2] = nx * dpx + ny * dpy
+            for p in range(3):
+                b[p] += jac[p] * w * r
+                for q in range(3):
+                    a[p][q] += jac[p] * jac[q] * w
+    return cost
+
+
+def surface_fit(PointIndex index, const double[:, ::1] pts, double sx, double sy, double sth,
+                double gx, double gy, double gth, double wx, double wy, double wth,
+                double radius, double sigma, int iterations, double step_m,
+                double step_rad):
+    """The pose, from (sx, sy, sθ), where the end points ``pts`` lie best on the reference
+    points' smooth surface (each end point's Huber-weighed distances to the tangent lines
+    of its reference points within ``radius``, weighed so that they fade in and out
+    smoothly: :func:`_surface_terms`), with a prior ½ (wx Δx² + wy Δy² + wθ Δθ²)
+    about (gx, gy, gθ): Gauss-Newton steps on the weights of the pose before (iteratively
+    reweighted least squares) until a step moves it less than ``step_m`` (|x| + |y|) and
+    ``step_rad``, or ``iterations`` steps. No pairing switches as the pose moves, so the
+    answer moves as little as the end points do. Returns (x, y, θ, share, ok, h): the
+    share of end points within reach of the surface, and h = Σ w J Jᵀ at the last pose."""
+    cdef double x = sx, y = sy, th = sth
+    cdef double a[3][3]
+    cdef double b[3]
+    cdef double d[3]
+    cdef Py_ssize_t used = 0
+    cdef int it, p
+    cdef bint ok = True
+    h = np.zeros((3, 3))
+    cdef double[:, ::1] hv = h
+    with nogil:
+        for it in range(iterations + 1):
+            _surface_terms(index, pts, x, y, th, radius, sigma, a, b, &used)
+            if used < 10:
+                ok = False
+                break
+            if it == iterations:
+                break
+            a[0][0] += wx + 1e-9
+            a[1][1] += wy + 1e-9
+            a[2][2] += wth + 1e-9
+            b[0] += wx * (x - gx)
+            b[1] += wy * (y - gy)
+            b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
+            if not solve3(a, b, d):
+                ok = False
+                break
+            x -= d[0]
+            y -= d[1]
+            th -= d[2]
+            if fabs(d[0]) + fabs(d[1]) < step_m and fabs(d[2]) < step_rad:
+                _surface_terms(index, pts, x, y, th, radius, sigma, a, b, &used)
+                break
+        for it in range(3):
+            for p in range(3):
+                hv[it, p] = a[it][p]
+    if not ok:
+        return sx, sy, sth, 0.0, False, np.zeros((3, 3))
+    return (x, y, remainder(th, 2 * 3.141592653589793), used / <double>max(pts.shape[0], 1),
+            True, h)

@@ -471,4 +471,27 @@ def odometry_log_prior(zx: np.ndarray, zy: np.ndarray, zth: np.ndarray,
     return np.logaddexp(-0.5 * (zx ** 2 + zy ** 2 + zth ** 2), math.log(glitch))
 
 
+CLIMB_STEPS = 30  # Newton's steps at most (3-5 from ICP's pose on a smooth surface)
+CLIMB_CONVERGED = (1e-6, 1e-7)  # a step under this (|x| + |y| m, |θ| rad): at the top
+
+
+def climbed(field: LogField, pts: np.ndarray, start: Pose2D, center: Pose2D,
+            prior_sigma: tuple[float, ...], residual_sigma: float, cfg: CorrelativeConfig
+            ) -> Pose2D:
+    """The pose of ``pts``' frame (N×2) nearest ``start`` where the field's smooth surface
+    (its cells as cubic B-spline coefficients: continuous to its second derivatives, so
+    Newton's steps meet at one top whatever the start within its basin) summed over the
+    end points is highest, less a Gaussian prior about ``center`` with ``prior_sigma``
+    (x, y, θ). Each end point weighs as a pair of ICP's with ``residual_sigma`` (m): the
+    table's curvature across a wall, (1 − outlier share) / σ², scaled to 1 / residual²."""
+    kappa = cfg.field_sigma_m ** 2 / ((1.0 - cfg.outlier_share) * residual_sigma ** 2)
+    wx, wy, wth = (1.0 / max(float(s), 1e-6) ** 2 for s in prior_sigma)
+    x, y, th, _, _ = _loops.spline_climb(
+        field.grid, np.ascontiguousarray(pts, dtype=np.float64), start.x, start.y,
+        start.theta, center.x, center.y, center.theta, float(field.origin[0]),
+        float(field.origin[1]), field.resolution, kappa, wx, wy, wth, CLIMB_STEPS,
+        *CLIMB_CONVERGED)
+    return Pose2D(x, y, math.remainder(th, math.tau))
+
+
 PEAK_CELLS = 2  # the pose is the posterior's mean over this many steps around its best

@@ -38,7 +38,9 @@ from dynslam_cli.localization.correlative import (
     LogField,
     OdometryCalibration,
     OdometryScale,
+    Posterior,
     View,
+    climbed,
     log_field,
     mark_seen,
     reach_cells,
@@ -146,6 +148,25 @@ def icp(ref: PointIndex, pts: np.ndarray, guess: Pose2D, cfg: IcpConfig,
              else RESIDUAL_SIGMA_M)
     return IcpResult(Pose2D(x, y, th), share, rms,
                      h * (min(cfg.effective_pairs, used) / used) / sigma ** 2)
+
+
+SURFACE_STEPS = 30  # Gauss-Newton steps at most (a few from ICP's pose)
+SURFACE_CONVERGED = (1e-6, 1e-7)  # a step under this (|x| + |y| m, |θ| rad): converged
+
+
+def surface_fit(ref: PointIndex, pts: np.ndarray, start: Pose2D, center: Pose2D,
+                prior_sigma: Sequence[float], radius: float) -> Pose2D | None:
+    """The pose of ``pts``' frame, from ``start``, where its points lie best on the smooth
+    surface of the reference points (indexed by ``ref``) within ``radius`` of each
+    (_match.surface_fit), with a Gaussian prior about ``center`` (``prior_sigma``: x, y,
+    θ) weighed against the points as ICP weighs its guess against its pairs. None where
+    fewer than ten points reach the surface."""
+    w = [(RESIDUAL_SIGMA_M / max(float(s), 1e-6)) ** 2 for s in prior_sigma]
+    x, y, th, _, ok, _ = _match.surface_fit(
+        ref, np.ascontiguousarray(pts, dtype=np.float64), start.x, start.y, start.theta,
+        center.x, center.y, center.theta, *w, radius, RESIDUAL_SIGMA_M, SURFACE_STEPS,
+        *SURFACE_CONVERGED)
+    return Pose2D(x, y, th) if ok else None
 
 
 def fused_covariance(information: np.ndarray, prior_sigma: Sequence[float]) -> np.ndarray:
@@ -617,6 +638,8 @@ class ScanMatcher:
                 return Placed(guess, "fallback")  # as refined within the window)
             return Placed(post.pose, source, post.cov, agrees)
         self.fit_rms = refined.rms
+        if cfg.correlative.polish != "none":
+            refined = self._polished(field, reference, pts, refined, post)
         st, sr = self._odometry.std(wheel, cfg.correlative.odometry)
         slipped_only_if_searched = agrees and cfg.correlative.slip_test == "search"
         fused = (fused_pose(refined.pose, refined.information, guess, (st, st, sr),
@@ -627,6 +650,19 @@ class ScanMatcher:
             return Placed(fused[0], source, fused[1], agrees, refined.pose)
         return Placed(refined.pose, source, fused_covariance(refined.information, (st, st, sr)),
                       agrees)
+
+    def _polished(self, field: LogField, reference: PointIndex, pts: np.ndarray,
+                  refined: IcpResult, post: Posterior) -> IcpResult:
+        """ICP's match ``refined`` of ``pts`` moved as ``polish`` says, with the search's
+        posterior ``post`` as its prior (as ICP's)."""
+        correlative = self.cfg.correlative
+        sigma = tuple(np.sqrt(np.diag(post.cov)))
+        if correlative.polish == "field":
+            return refined._replace(pose=climbed(field, pts, refined.pose, post.pose, sigma,
+                                                 RESIDUAL_SIGMA_M, correlative))
+        fit = surface_fit(reference, pts, refined.pose, post.pose, sigma,
+                          correlative.surface_radius_m)
+        return refined if fit is None else refined._replace(pose=fit)
 
     def _fits(self, share: float, pose: Pose2D, pts: np.ndarray, relax: bool) -> bool:
         """Whether ``share`` of ``pts`` fitting the local map at ``pose`` is enough: at
