@@ -10,7 +10,7 @@ GIL, so threads (a Dask worker's, say) can process several logs at once.
 
 import numpy as np
 
-from libc.math cimport INFINITY, atan2, ceil, cos, fabs, floor, hypot, remainder, sin, sqrt
+from libc.math cimport INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, remainder, sin, sqrt
 from libc.stdlib cimport calloc, free, malloc, realloc
 
 from dynslam_cli.localization._linalg cimport solve3
@@ -460,7 +460,9 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
     cdef Py_ssize_t iv[SURFACE_NEIGHBOURS]
     cdef double dv[SURFACE_NEIGHBOURS]
     cdef double wv[SURFACE_NEIGHBOURS]
+    cdef double rv[SURFACE_NEIGHBOURS]
     cdef double c = cos(th), s = sin(th), px, py, dpx, dpy, r2 = radius * radius, total
+    cdef double s2 = sigma * sigma
     cdef double cost = 0.0, nx, ny, r, w, jac[3]
     for p in range(3):
         b[p] = 0.0
@@ -473,11 +475,14 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
         k = index._search(px, py, SURFACE_NEIGHBOURS, r2, iv, dv)
         total = EDGE_WEIGHT
         for m in range(k):
-            index._normal(iv[m])
-            if index.nrm[iv[m], 0] == 0.0 and index.nrm[iv[m], 1] == 0.0:
+            j = iv[m]
+            index._normal(j)
+            if index.nrm[j, 0] == 0.0 and index.nrm[j, 1] == 0.0:
                 wv[m] = 0.0  # (a point on no line)
-            else:
-                wv[m] = (1.0 - dv[m] / r2) * (1.0 - dv[m] / r2)
+                continue
+            rv[m] = ((px - index.pts[j, 0]) * index.nrm[j, 0]
+                     + (py - index.pts[j, 1]) * index.nrm[j, 1])
+            wv[m] = (1.0 - dv[m] / r2) * (1.0 - dv[m] / r2) * exp(-0.5 * rv[m] * rv[m] / s2)
             total += wv[m]
         if total <= EDGE_WEIGHT:
             continue
@@ -490,7 +495,7 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
             j = iv[m]
             nx = index.nrm[j, 0]
             ny = index.nrm[j, 1]
-            r = (px - index.pts[j, 0]) * nx + (py - index.pts[j, 1]) * ny
+            r = rv[m]
             w = wv[m] / total
             if fabs(r) <= sigma:
                 cost += w * 0.5 * r * r
