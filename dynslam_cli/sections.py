@@ -519,16 +519,26 @@ class CorrelativeConfig:
     polish: str = "none"
     """Where ICP's refined pose goes last: "none", it stands; "surface", to where the end
     points lie best on the local map's smooth surface (each end point's distances to the
-    tangent lines of all its reference points within ``surface_radius_m``, weighed so
-    they fade in and out smoothly; scanmatch.surface_fit); "field", to the top of the
-    lookup table's smooth surface (its cells as a cubic B-spline's coefficients;
+    tangent lines of its reference points within ``surface_radius_m``, weighed so they
+    fade in and out smoothly; scanmatch.surface_fit); "field", to the top of the lookup
+    table's smooth surface (its cells as a cubic B-spline's coefficients;
     correlative.climbed). ICP pairs each end point with its nearest reference point, and
     the pairs switch as the pose moves: a range moved by 1 mm moved ICP's pose 0.30 mm
     and 0.0032° a scan on MIT CSAIL, about 7 times what least squares would. ICP's share,
-    RMS and information stand (the polish moves the pose by about a millimetre)."""
-    surface_radius_m: float = 0.15
+    RMS and information stand (the polish moves the pose by about a millimetre). Off:
+    the smooth surface makes the front end less chaotic (two perturbed copies of MIT,
+    front end alone: their increments differ by a median 0.70 mm / 0.017° a scan against
+    1.48 mm / 0.032°; 0.52 mm / 0.011° with a radius of 0.15 m), but the local SLAM's
+    relation errors are not steadier for it (five copies, pose graph off, median
+    (spread): MIT 0.0396 (42%) -> 0.0385 (43%) with "surface", 0.0646 (24%) with
+    "field") and its single runs lose more rows than they
+    win: every figure in bench/configs/polish_surface.toml."""
+    surface_radius_m: float = 0.08
     """With ``polish = "surface"``: how far an end point's reference points shape its
-    surface (m)."""
+    surface (m). Wider, the lines of a corner's other wall and of a door's jamb pull the
+    pose along a corridor: the corridors world with true odometry, pose graph on, seeds
+    0 / 1 / 2, 0.0054 / 0.0044 / 0.0049 m at 0.08, 0.0075 / 0.0066 / 0.0071 at 0.15,
+    0.0105 / 0.0086 / 0.0093 at 0.3 (no polish: 0.0049 / 0.0043 / 0.0051)."""
     voxel_m: float = 0.0
     """The scan's end points searched are one per square of this side (the first in beam
     order; 0: all of them): near the robot a scan's end points crowd (a wall 1 m away holds
