@@ -703,6 +703,17 @@ class MatchConfig:
     """Use every n-th beam of the current scan."""
     min_inliers: float = 0.5
     """Share of points that must pair up for the match to count."""
+    lost_over: str = "all"
+    """When the correlative search's window around the odometry's guess explains nothing
+    and is searched again wider (up to ``correlative.max_window_m``): where its best pose
+    scores under ``min_inliers`` of all the end points ("all"), or under the share a match
+    found there is taken at with ``inliers_over = "seen"`` ("seen": ``seen_inliers`` of
+    those that land, at the guess, where the local map looked). A scan that sees much the
+    local map did not (walkers, open space) scores low where it stands, and in a window a
+    metre wide what the walkers left in the local map can score higher elsewhere: the hall
+    world (drifting odometry, seed 2) at scan 220 scored 0.468 at its odometry's guess
+    (0.0013 m off the truth), the window was widened, and 0.93 m ahead scored 0.552 and
+    was taken; the map stayed 0.4 m off for 9 s (ATE 0.0367 m)."""
     inliers_over: str = "seen"
     """Which end points the share that must fit is of (the correlative search's score and
     its refinement's pairs): "all", ``min_inliers`` of the scan's; or "seen": the match
@@ -911,8 +922,8 @@ class MatchConfig:
                  (self.normal_gap == 0 or self.normal_gap > 1,
                   "match.normal_gap must be 0 (off) or > 1"),
                  (self.thin_to in ("first", "mean"), 'match.thin_to must be "first" or "mean"'),
-                 (self.inliers_over in ("all", "seen"),
-                  'match.inliers_over must be "all" or "seen"'),
+                 (self.inliers_over in ("all", "seen") and self.lost_over in ("all", "seen"),
+                  'match.inliers_over and match.lost_over must be "all" or "seen"'),
                  (0.0 < self.seen_inliers <= 1.0, "match.seen_inliers must be in (0, 1]")])
         self.icp.check()
         self.correlative.check()

@@ -608,7 +608,8 @@ class ScanMatcher:
         voxel = cfg.correlative.voxel_m
         searched = pts[thin(pts, voxel)] if voxel > 0 else pts
         turn = self._widest_turn(wheel)
-        post = search(field, searched, guess, window, cfg.correlative, cfg.min_inliers, turn)
+        post = search(field, searched, guess, window, cfg.correlative,
+                      self._lost_below(guess, searched), turn)
         source = "matched"
         agrees = not _outside(post.pose, guess, window, cfg.correlative.window_sigmas)
         if not self._fits(post.score, post.pose, searched, agrees) or not agrees or (
@@ -675,6 +676,17 @@ class ScanMatcher:
             return share >= cfg.min_inliers
         looked = self._map.looked_share(pose, pts)
         return share >= cfg.seen_inliers * max(looked, MIN_SEEN_SHARE)
+
+    def _lost_below(self, guess: Pose2D, pts: np.ndarray) -> float:
+        """The score under which the search's window around the odometry's ``guess``
+        explains nothing and is widened: ``min_inliers``, or with ``lost_over = "seen"``
+        the share :meth:`_fits` takes of a match found there (``seen_inliers`` of the end
+        points ``pts`` that land, at the guess, where the local map looked)."""
+        cfg = self.cfg
+        if cfg.lost_over == "all":
+            return cfg.min_inliers
+        looked = self._map.looked_share(guess, pts)
+        return min(cfg.min_inliers, cfg.seen_inliers * max(looked, MIN_SEEN_SHARE))
 
     def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
         """The standard deviations (x, y, θ) of a wheel increment that the search's window
