@@ -1,6 +1,6 @@
 """Small dense linear algebra shared by the compiled kernels (inlined into each)."""
 
-from libc.math cimport fabs
+from libc.math cimport fabs, remainder
 
 
 cdef inline int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
@@ -29,3 +29,16 @@ cdef inline int solve3(double a[3][3], double b[3], double x[3]) noexcept nogil:
             t -= a[i][j] * x[j]
         x[i] = t / a[i][i]
     return 1
+
+
+cdef inline void add_prior(double a[3][3], double b[3], double dx, double dy, double dth,
+                           double wx, double wy, double wth) noexcept nogil:
+    """A Gaussian prior on the pose (weights wx, wy, wθ) into Gauss-Newton's normal
+    equations a d = b (the step subtracted), the pose (dx, dy, dθ) from its centre (dθ
+    wrapped); 1e-9 on the diagonal keeps a free direction solvable."""
+    a[0][0] += wx + 1e-9
+    a[1][1] += wy + 1e-9
+    a[2][2] += wth + 1e-9
+    b[0] += wx * dx
+    b[1] += wy * dy
+    b[2] += wth * remainder(dth, 2 * 3.141592653589793)

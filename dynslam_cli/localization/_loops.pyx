@@ -102,41 +102,57 @@ def spline_mean(const double[:, ::1] coef, const double[:, ::1] pts, double x, d
     """The mean, over the points ``pts`` (N×2) placed at pose (x, y, θ), of the cubic
     B-spline whose coefficients are ``coef`` (cell (0, 0) centred on (ox, oy); coefficients
     off the grid are 0), and its gradient in (x, y, θ): (mean, d/dx, d/dy, d/dθ)."""
-    cdef Py_ssize_t n = pts.shape[0], nr = coef.shape[0], nc = coef.shape[1], k, i, j, r, c
-    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, f, fu, fv, w
+    cdef Py_ssize_t n = pts.shape[0], k
+    cdef double ct = cos(theta), st = sin(theta), px, py
     cdef double acc = 0.0, gx = 0.0, gy = 0.0, gt = 0.0
-    cdef double wu[4]
-    cdef double wv[4]
-    cdef double du[4]
-    cdef double dv[4]
+    cdef double at[6]
     if n == 0:
         return 0.0, 0.0, 0.0, 0.0
     with nogil:
         for k in range(n):
             px = x + ct * pts[k, 0] - st * pts[k, 1]
             py = y + st * pts[k, 0] + ct * pts[k, 1]
-            u = (px - ox) / res
-            v = (py - oy) / res
-            c = <Py_ssize_t>floor(u)
-            r = <Py_ssize_t>floor(v)
-            _bspline3(u - c, wu, du)
-            _bspline3(v - r, wv, dv)
-            f = 0.0
-            fu = 0.0
-            fv = 0.0
-            for i in range(4):
-                if 0 <= r - 1 + i < nr:
-                    for j in range(4):
-                        if 0 <= c - 1 + j < nc:
-                            w = coef[r - 1 + i, c - 1 + j]
-                            f = f + w * wv[i] * wu[j]
-                            fu = fu + w * wv[i] * du[j]
-                            fv = fv + w * dv[i] * wu[j]
-            acc = acc + f
-            gx = gx + fu
-            gy = gy + fv
-            gt = gt + (-(py - y) * fu + (px - x) * fv)
+            _spline_at(coef, (px - ox) / res, (py - oy) / res, False, at)
+            acc = acc + at[0]
+            gx = gx + at[1]
+            gy = gy + at[2]
+            gt = gt + (-(py - y) * at[1] + (px - x) * at[2])
     return acc / n, gx / (n * res), gy / (n * res), gt / (n * res)
+
+
+cdef inline void _spline_at(const double[:, ::1] coef, double u, double v, bint curvature,
+                            double* at) noexcept nogil:
+    """The cubic B-spline of ``coef`` at (u, v) (cells: column, row) into at[0], its
+    derivatives in u and v into at[1], at[2], and with ``curvature`` its second derivatives
+    (uu, uv, vv) into at[3:6]; coefficients off the grid count 0."""
+    cdef Py_ssize_t nr = coef.shape[0], nc = coef.shape[1], i, j
+    cdef Py_ssize_t c = <Py_ssize_t>floor(u), r = <Py_ssize_t>floor(v)
+    cdef double w
+    cdef double wu[4]
+    cdef double wv[4]
+    cdef double du[4]
+    cdef double dv[4]
+    cdef double su[4]
+    cdef double sv[4]
+    _bspline3(u - c, wu, du)
+    _bspline3(v - r, wv, dv)
+    if curvature:
+        _bspline3_curvature(u - c, su)
+        _bspline3_curvature(v - r, sv)
+    for i in range(6):
+        at[i] = 0.0
+    for i in range(4):
+        if 0 <= r - 1 + i < nr:
+            for j in range(4):
+                if 0 <= c - 1 + j < nc:
+                    w = coef[r - 1 + i, c - 1 + j]
+                    at[0] = at[0] + w * wv[i] * wu[j]
+                    at[1] = at[1] + w * wv[i] * du[j]
+                    at[2] = at[2] + w * dv[i] * wu[j]
+                    if curvature:
+                        at[3] += w * wv[i] * su[j]
+                        at[4] += w * dv[i] * du[j]
+                        at[5] += w * sv[i] * wu[j]
 
 
 cdef inline void _bspline3(double t, double* w, double* d) noexcept nogil:
@@ -170,17 +186,11 @@ cdef double _spline_terms(const double[:, ::1] coef, const double[:, ::1] pts, d
     negative of the spline's 2×2 Hessian in x, y with its upward bends set to zero, so h
     is positive semi-definite: on a wall's ridge, C is the wall's normal's nnᵀ times the
     ridge's curvature, as a point-to-line pair weighs), J the point's motion in (x, y, θ)."""
-    cdef Py_ssize_t n = pts.shape[0], nr = coef.shape[0], nc = coef.shape[1], k, i, j, r, c
-    cdef Py_ssize_t p, q
-    cdef double ct = cos(theta), st = sin(theta), px, py, u, v, w, f, fu, fv, fuu, fuv, fvv
+    cdef Py_ssize_t n = pts.shape[0], k, p, q
+    cdef double ct = cos(theta), st = sin(theta), px, py, f, fu, fv, fuu, fuv, fvv
     cdef double total = 0.0, a, b, cc, tr, det, disc, l1, l2, e1x, e1y, norm, jx[3], jy[3]
     cdef double m00, m01, m11
-    cdef double wu[4]
-    cdef double wv[4]
-    cdef double du[4]
-    cdef double dv[4]
-    cdef double su[4]
-    cdef double sv[4]
+    cdef double at[6]
     for p in range(3):
         g[p] = 0.0
         for q in range(3):
@@ -188,26 +198,8 @@ cdef double _spline_terms(const double[:, ::1] coef, const double[:, ::1] pts, d
     for k in range(n):
         px = x + ct * pts[k, 0] - st * pts[k, 1]
         py = y + st * pts[k, 0] + ct * pts[k, 1]
-        u = (px - ox) / res
-        v = (py - oy) / res
-        c = <Py_ssize_t>floor(u)
-        r = <Py_ssize_t>floor(v)
-        _bspline3(u - c, wu, du)
-        _bspline3(v - r, wv, dv)
-        _bspline3_curvature(u - c, su)
-        _bspline3_curvature(v - r, sv)
-        f = fu = fv = fuu = fuv = fvv = 0.0
-        for i in range(4):
-            if 0 <= r - 1 + i < nr:
-                for j in range(4):
-                    if 0 <= c - 1 + j < nc:
-                        w = coef[r - 1 + i, c - 1 + j]
-                        f += w * wv[i] * wu[j]
-                        fu += w * wv[i] * du[j]
-                        fv += w * dv[i] * wu[j]
-                        fuu += w * wv[i] * su[j]
-                        fuv += w * dv[i] * du[j]
-                        fvv += w * sv[i] * wu[j]
+        _spline_at(coef, (px - ox) / res, (py - oy) / res, True, at)
+        f, fu, fv, fuu, fuv, fvv = at[0], at[1], at[2], at[3], at[4], at[5]
         total += f
         fu /= res
         fv /= res

@@ -13,7 +13,7 @@ import numpy as np
 from libc.math cimport INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, remainder, sin, sqrt
 from libc.stdlib cimport calloc, free, malloc, realloc
 
-from dynslam_cli.localization._linalg cimport solve3
+from dynslam_cli.localization._linalg cimport add_prior, solve3
 
 ctypedef unsigned char u8
 
@@ -317,12 +317,7 @@ cdef bint _icp(PointIndex index, const double[:, ::1] pts, double gx, double gy,
         out[8] = a[1][1]
         out[9] = a[1][2]
         out[10] = a[2][2]
-        a[0][0] += wx + 1e-9
-        a[1][1] += wy + 1e-9
-        a[2][2] += wth + 1e-9
-        b[0] += wx * (x - gx)
-        b[1] += wy * (y - gy)
-        b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
+        add_prior(a, b, x - gx, y - gy, th - gth, wx, wy, wth)
         if not solve3(a, b, d):
             return False
         x -= d[0]
@@ -542,12 +537,7 @@ def surface_fit(PointIndex index, const double[:, ::1] pts, double sx, double sy
                 break
             if it == iterations:
                 break
-            a[0][0] += wx + 1e-9
-            a[1][1] += wy + 1e-9
-            a[2][2] += wth + 1e-9
-            b[0] += wx * (x - gx)
-            b[1] += wy * (y - gy)
-            b[2] += wth * remainder(th - gth, 2 * 3.141592653589793)
+            add_prior(a, b, x - gx, y - gy, th - gth, wx, wy, wth)
             if not solve3(a, b, d):
                 ok = False
                 break
