@@ -674,8 +674,13 @@ class ScanMatcher:
         cfg = self.cfg
         if share >= cfg.min_inliers or cfg.inliers_over == "all" or not relax:
             return share >= cfg.min_inliers
-        looked = self._map.looked_share(pose, pts)
-        return share >= cfg.seen_inliers * max(looked, MIN_SEEN_SHARE)
+        return share >= self._seen_needed(pose, pts)
+
+    def _seen_needed(self, pose: Pose2D, pts: np.ndarray) -> float:
+        """The share of ``pts`` that must fit at ``pose`` under ``inliers_over = "seen"``:
+        ``seen_inliers`` of those that land where the local map looked (at least
+        MIN_SEEN_SHARE of all counted)."""
+        return self.cfg.seen_inliers * max(self._map.looked_share(pose, pts), MIN_SEEN_SHARE)
 
     def _lost_below(self, guess: Pose2D, pts: np.ndarray) -> float:
         """The score under which the search's window around the odometry's ``guess``
@@ -685,8 +690,7 @@ class ScanMatcher:
         cfg = self.cfg
         if cfg.lost_over == "all":
             return cfg.min_inliers
-        looked = self._map.looked_share(guess, pts)
-        return min(cfg.min_inliers, cfg.seen_inliers * max(looked, MIN_SEEN_SHARE))
+        return min(cfg.min_inliers, self._seen_needed(guess, pts))
 
     def _search_sigma(self, wheel: Pose2D) -> tuple[float, float, float]:
         """The standard deviations (x, y, θ) of a wheel increment that the search's window
