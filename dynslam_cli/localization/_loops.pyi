@@ -14,8 +14,7 @@ def spline_mean(coef: np.ndarray, pts: np.ndarray, x: float, y: float, theta: fl
 def spline_climb(coef: np.ndarray, pts: np.ndarray, sx: float, sy: float, sth: float,
                  gx: float, gy: float, gth: float, ox: float, oy: float, res: float,
                  kappa: float, wx: float, wy: float, wth: float, iterations: int,
-                 step_m: float, step_rad: float
-                 ) -> tuple[float, float, float, int, np.ndarray]: ...
+                 step_m: float, step_rad: float) -> tuple[float, float, float]: ...
 def shortest_paths(head: np.ndarray, nxt: np.ndarray, to: np.ndarray, length: np.ndarray,
                    n: int, sources: np.ndarray, limit: float,
                    max_nodes: int, targets: np.ndarray) -> np.ndarray: ...

@@ -14,7 +14,7 @@ from libc.math cimport (INFINITY, atan2, ceil, cos, exp, fabs, floor, hypot, log
                         sin, sqrt)
 from libc.stdlib cimport calloc, free, malloc, realloc
 
-from dynslam_cli.localization._linalg cimport solve3
+from dynslam_cli.localization._linalg cimport add_prior, solve3
 
 ctypedef unsigned char u8
 
@@ -262,38 +262,31 @@ def spline_climb(const double[:, ::1] coef, const double[:, ::1] pts, double sx,
     curvature made positive (:func:`_spline_terms`), each halved until it climbs (at most
     ten times), until a step moves the pose less than ``step_m`` (|x| + |y|) and
     ``step_rad``, or ``iterations`` steps. A smooth surface's top moves as little as its
-    points do (no pairing that switches). Returns (x, y, θ, steps, h): h the last pose's
-    kappa Σ Jᵀ C J (3×3)."""
+    points do (no pairing that switches). Returns (x, y, θ)."""
     cdef double x = sx, y = sy, th = sth, nx, ny, nth, value, trial = 0.0, alpha
     cdef double g[3]
     cdef double hh[3][3]
     cdef double a[3][3]
     cdef double b[3]
     cdef double d[3]
-    cdef double gd[3]
-    cdef double hd[3][3]
-    cdef int it, p, q, halvings, steps = 0
+    cdef int it, p, q, halvings
     with nogil:
         value = (kappa * _spline_terms(coef, pts, x, y, th, ox, oy, res, g, hh)
                  - _prior_cost(x - gx, y - gy, th - gth, wx, wy, wth))
         for it in range(iterations):
             for p in range(3):
+                b[p] = -kappa * g[p]
                 for q in range(3):
                     a[p][q] = kappa * hh[p][q]
-            a[0][0] += wx + 1e-9
-            a[1][1] += wy + 1e-9
-            a[2][2] += wth + 1e-9
-            b[0] = kappa * g[0] - wx * (x - gx)
-            b[1] = kappa * g[1] - wy * (y - gy)
-            b[2] = kappa * g[2] - wth * remainder(th - gth, TAU)
+            add_prior(a, b, x - gx, y - gy, th - gth, wx, wy, wth)
             if not solve3(a, b, d):
                 break
             alpha = 1.0
             for halvings in range(11):
-                nx = x + alpha * d[0]
-                ny = y + alpha * d[1]
-                nth = th + alpha * d[2]
-                trial = (kappa * _spline_terms(coef, pts, nx, ny, nth, ox, oy, res, gd, hd)
+                nx = x - alpha * d[0]
+                ny = y - alpha * d[1]
+                nth = th - alpha * d[2]
+                trial = (kappa * _spline_terms(coef, pts, nx, ny, nth, ox, oy, res, g, hh)
                          - _prior_cost(nx - gx, ny - gy, nth - gth, wx, wy, wth))
                 if trial >= value:
                     break
@@ -301,15 +294,9 @@ def spline_climb(const double[:, ::1] coef, const double[:, ::1] pts, double sx,
             if trial < value:
                 break  # (no step along d climbs: at the top, as far as doubles tell)
             x, y, th, value = nx, ny, nth, trial
-            steps += 1
-            for p in range(3):
-                g[p] = gd[p]
-                for q in range(3):
-                    hh[p][q] = hd[p][q]
             if alpha * (fabs(d[0]) + fabs(d[1])) < step_m and alpha * fabs(d[2]) < step_rad:
                 break
-    h = np.array([[kappa * hh[p][q] for q in range(3)] for p in range(3)])
-    return x, y, th, steps, h
+    return x, y, th
 
 
 cdef inline double _cell(const double[:, ::1] grid, Py_ssize_t r, Py_ssize_t c) noexcept nogil:

@@ -442,14 +442,13 @@ cdef enum:
 cdef double EDGE_WEIGHT = 0.05  # added to an end point's weights' sum: its pull fades as they do
 
 
-cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x, double y,
-                           double th, double radius, double sigma, double a[3][3],
-                           double b[3], Py_ssize_t* used) noexcept nogil:
+cdef void _surface_terms(PointIndex index, const double[:, ::1] pts, double x, double y,
+                         double th, double radius, double sigma, double a[3][3],
+                         double b[3], Py_ssize_t* used) noexcept nogil:
     """At pose (x, y, θ): each end point's distances to its reference points' tangent lines
     within ``radius``, weighed by (1 − d²/radius²)² of its distance d to each (a weight that
     fades to nothing, its slope too, where a point leaves the circle) over their sum plus
-    EDGE_WEIGHT, and by Huber's rule at ``sigma``. Returns the cost Σ w ρ(r) (ρ: Huber's);
-    into a and b the normal equations Σ w J Jᵀ and Σ w J r, J the line distance's gradient
+    EDGE_WEIGHT, and by Huber's rule at ``sigma``: into a and b the normal equations Σ w J Jᵀ and Σ w J r, J the line distance's gradient
     in (x, y, θ); into used how many end points have a reference point within reach."""
     cdef Py_ssize_t n = pts.shape[0], i, m, k, j, p, q
     cdef Py_ssize_t iv[SURFACE_NEIGHBOURS]
@@ -458,7 +457,7 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
     cdef double rv[SURFACE_NEIGHBOURS]
     cdef double c = cos(th), s = sin(th), px, py, dpx, dpy, r2 = radius * radius, total
     cdef double s2 = sigma * sigma
-    cdef double cost = 0.0, nx, ny, r, w, jac[3]
+    cdef double nx, ny, r, w, jac[3]
     for p in range(3):
         b[p] = 0.0
         for q in range(3):
@@ -492,10 +491,7 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
             ny = index.nrm[j, 1]
             r = rv[m]
             w = wv[m] / total
-            if fabs(r) <= sigma:
-                cost += w * 0.5 * r * r
-            else:
-                cost += w * sigma * (fabs(r) - 0.5 * sigma)
+            if fabs(r) > sigma:
                 w *= sigma / fabs(r)
             jac[0] = nx
             jac[1] = ny
@@ -504,7 +500,6 @@ cdef double _surface_terms(PointIndex index, const double[:, ::1] pts, double x,
                 b[p] += jac[p] * w * r
                 for q in range(3):
                     a[p][q] += jac[p] * jac[q] * w
-    return cost
 
 
 def surface_fit(PointIndex index, const double[:, ::1] pts, double sx, double sy, double sth,
@@ -518,24 +513,20 @@ def surface_fit(PointIndex index, const double[:, ::1] pts, double sx, double sy
     about (gx, gy, gθ): Gauss-Newton steps on the weights of the pose before (iteratively
     reweighted least squares) until a step moves it less than ``step_m`` (|x| + |y|) and
     ``step_rad``, or ``iterations`` steps. No pairing switches as the pose moves, so the
-    answer moves as little as the end points do. Returns (x, y, θ, share, ok, h): the
-    share of end points within reach of the surface, and h = Σ w J Jᵀ at the last pose."""
+    answer moves as little as the end points do. Returns (x, y, θ, ok): ok False (and the
+    start) where fewer than ten end points reach the surface."""
     cdef double x = sx, y = sy, th = sth
     cdef double a[3][3]
     cdef double b[3]
     cdef double d[3]
     cdef Py_ssize_t used = 0
-    cdef int it, p
+    cdef int it
     cdef bint ok = True
-    h = np.zeros((3, 3))
-    cdef double[:, ::1] hv = h
     with nogil:
-        for it in range(iterations + 1):
+        for it in range(iterations):
             _surface_terms(index, pts, x, y, th, radius, sigma, a, b, &used)
             if used < 10:
                 ok = False
-                break
-            if it == iterations:
                 break
             add_prior(a, b, x - gx, y - gy, th - gth, wx, wy, wth)
             if not solve3(a, b, d):
@@ -545,12 +536,7 @@ def surface_fit(PointIndex index, const double[:, ::1] pts, double sx, double sy
             y -= d[1]
             th -= d[2]
             if fabs(d[0]) + fabs(d[1]) < step_m and fabs(d[2]) < step_rad:
-                _surface_terms(index, pts, x, y, th, radius, sigma, a, b, &used)
                 break
-        for it in range(3):
-            for p in range(3):
-                hv[it, p] = a[it][p]
     if not ok:
-        return sx, sy, sth, 0.0, False, np.zeros((3, 3))
-    return (x, y, remainder(th, 2 * 3.141592653589793), used / <double>max(pts.shape[0], 1),
-            True, h)
+        return sx, sy, sth, False
+    return x, y, remainder(th, 2 * 3.141592653589793), True

@@ -486,7 +486,7 @@ def climbed(field: LogField, pts: np.ndarray, start: Pose2D, center: Pose2D,
     table's curvature across a wall, (1 − outlier share) / σ², scaled to 1 / residual²."""
     kappa = cfg.field_sigma_m ** 2 / ((1.0 - cfg.outlier_share) * residual_sigma ** 2)
     wx, wy, wth = (1.0 / max(float(s), 1e-6) ** 2 for s in prior_sigma)
-    x, y, th, _, _ = _loops.spline_climb(
+    x, y, th = _loops.spline_climb(
         field.grid, np.ascontiguousarray(pts, dtype=np.float64), start.x, start.y,
         start.theta, center.x, center.y, center.theta, float(field.origin[0]),
         float(field.origin[1]), field.resolution, kappa, wx, wy, wth, CLIMB_STEPS,

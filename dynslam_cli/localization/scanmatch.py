@@ -162,7 +162,7 @@ def surface_fit(ref: PointIndex, pts: np.ndarray, start: Pose2D, center: Pose2D,
     θ) weighed against the points as ICP weighs its guess against its pairs. None where
     fewer than ten points reach the surface."""
     w = [(RESIDUAL_SIGMA_M / max(float(s), 1e-6)) ** 2 for s in prior_sigma]
-    x, y, th, _, ok, _ = _match.surface_fit(
+    x, y, th, ok = _match.surface_fit(
         ref, np.ascontiguousarray(pts, dtype=np.float64), start.x, start.y, start.theta,
         center.x, center.y, center.theta, *w, radius, RESIDUAL_SIGMA_M, SURFACE_STEPS,
         *SURFACE_CONVERGED)
